@@ -1,0 +1,1 @@
+"""The `deepslam` command: a thin wiring of frontend, backend, sim and logs."""

@@ -1,0 +1,155 @@
+"""Detector evaluation on Synthetic Shapes: the paper's table, per category, noise magnitude and type."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from tqdm import tqdm
+
+from frontend.metrics import average_precision, localization_error, match_detections, merge
+from sim import noise
+
+Item = tuple[str, np.ndarray, np.ndarray]  # (category, image, corners)
+
+
+class Detector(Protocol):
+    def detect(self, image: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class MagicPointDetector:
+    """Adapter so a MagicPoint is scored like the others (it already has ``detect``)."""
+
+    model: object
+
+    def detect(self, image: np.ndarray) -> np.ndarray:
+        return self.model.detect(image)
+
+
+def noisy_set(items: list[Item], seed: int, s: float = 1.0, kind: str = "full") -> list[Item]:
+    """The same images with noise of ``kind`` at magnitude ``s``; each image's noise has its own seed."""
+    return [(category, noise.apply(image, np.random.default_rng([seed, index]), s, kind), corners)
+            for index, (category, image, corners) in enumerate(items)]
+
+
+def evaluate_set(detector: Detector, items: list[Item], progress: str | None = None) -> dict:
+    """mAP and MLE over the pooled set, and per category: {"map", "mle", "per_category": {...}}."""
+    by_category: dict[str, list] = {}
+    for category, image, corners in tqdm(items, desc=progress, disable=progress is None, leave=False):
+        by_category.setdefault(category, []).append(match_detections(detector.detect(image), corners))
+    pooled = merge([r for results in by_category.values() for r in results])
+    per_category = {}
+    for category, results in by_category.items():
+        merged = merge(results)
+        per_category[category] = {"ap": average_precision(merged), "mle": localization_error(merged),
+                                  "false_positives_per_image": float((~merged.correct).sum() / len(results))}
+    return {"map": average_precision(pooled), "mle": localization_error(pooled), "per_category": per_category}
+
+
+PAPER_TABLE = {  # the paper's Synthetic Shapes table: mAP clean, mAP noisy, MLE clean, MLE noisy
+    "MagicPointL": (0.979, 0.971, 0.860, 1.012), "MagicPointS": (0.980, 0.939, 0.922, 1.078),
+    "FAST": (0.405, 0.061, 1.656, 1.766), "Harris": (0.678, 0.213, 1.245, 1.409), "Shi": (0.686, 0.157, 1.188, 1.383),
+}
+SWEEP = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
+
+
+def available_detectors(threshold: float = 0.001) -> dict[str, Detector]:
+    """FAST, Harris, Shi, and every MagicPoint variant whose weights are shipped."""
+    from frontend.classical import ClassicalDetector
+    from frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
+
+    detectors: dict[str, Detector] = {f"MagicPoint{v}": MagicPoint.pretrained(v, threshold=threshold)
+                                      for v in VARIANTS if (WEIGHTS / f"magicpoint_{v}.pt").exists()}
+    detectors.update({"FAST": ClassicalDetector("fast"), "Harris": ClassicalDetector("harris"),
+                      "Shi": ClassicalDetector("shi")})
+    return detectors
+
+
+def report(detectors: dict[str, Detector], per_category: int, sweep_per_category: int, seed: int) -> dict:
+    """Everything ``deepslam eval detector`` shows: table, per category, noise sweep, noise types."""
+    from sim.shapes import evaluation_set
+
+    items = evaluation_set(per_category, seed=seed)
+    noisy = noisy_set(items, seed)
+    sweep_items = evaluation_set(sweep_per_category, seed=seed)
+    result: dict = {"per_category_images": per_category, "seed": seed, "detectors": {}}
+    for name, detector in detectors.items():
+        clean_figures = evaluate_set(detector, items, f"{name} clean")
+        noisy_figures = evaluate_set(detector, noisy, f"{name} noisy")
+        sweep = {s: evaluate_set(detector, noisy_set(sweep_items, seed, s), f"{name} s={s}") for s in SWEEP}
+        kinds = {k: evaluate_set(detector, noisy_set(sweep_items, seed, 1.0, k), f"{name} {k}")
+                 for k in noise.KINDS}
+        result["detectors"][name] = {
+            "clean": clean_figures, "noisy": noisy_figures,
+            "sweep": {str(s): {"map": f["map"], "mle": f["mle"]} for s, f in sweep.items()},
+            "noise_types": {k: {"map": f["map"], "mle": f["mle"]} for k, f in kinds.items()},
+        }
+    return result
+
+
+def table_lines(result: dict) -> list[str]:
+    """The paper's table with this run's figures and the paper's beside them."""
+    lines = [f"{'detector':<13} {'mAP clean':>10} {'mAP noisy':>10} {'MLE clean':>10} {'MLE noisy':>10}   paper (same columns)"]
+    for name, figures in result["detectors"].items():
+        ours = (figures["clean"]["map"], figures["noisy"]["map"], figures["clean"]["mle"], figures["noisy"]["mle"])
+        paper = " / ".join(f"{v:.3f}" for v in PAPER_TABLE.get(name, ()))
+        lines.append(f"{name:<13} " + " ".join(f"{v:>10.3f}" for v in ours) + f"   {paper}")
+    return lines
+
+
+def category_lines(result: dict) -> list[str]:
+    names = list(result["detectors"])
+    categories = list(next(iter(result["detectors"].values()))["clean"]["per_category"])
+    lines = [f"{'AP clean/noisy':<16}" + "".join(f"{n:>16}" for n in names)]
+    for category in categories:
+        cells = [f"{d['clean']['per_category'][category]['ap']:.3f}/{d['noisy']['per_category'][category]['ap']:.3f}"
+                 for d in result["detectors"].values()]
+        lines.append(f"{category:<16}" + "".join(f"{c:>16}" for c in cells))
+    return lines
+
+
+def save_plots(result: dict, out_dir) -> list:
+    """PNG plots: per-category AP, mAP/MLE against noise magnitude, mAP per noise type."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    detectors = result["detectors"]
+    paths = []
+    categories = list(next(iter(detectors.values()))["clean"]["per_category"])
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4), sharey=True)
+    width = 0.8 / len(detectors)
+    for ax, condition in zip(axes, ("clean", "noisy")):
+        for i, (name, figures) in enumerate(detectors.items()):
+            ax.bar(np.arange(len(categories)) + i * width, [figures[condition]["per_category"][c]["ap"] for c in categories],
+                   width, label=name)
+        ax.set_xticks(np.arange(len(categories)) + 0.4 - width / 2, categories, rotation=45, ha="right")
+        ax.set_title(f"AP per category ({condition})")
+    axes[0].legend()
+    fig.tight_layout()
+    paths.append(out_dir / "detector_categories.png")
+    fig.savefig(paths[-1], dpi=100)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for name, figures in detectors.items():
+        s = [float(k) for k in figures["sweep"]]
+        axes[0].plot(s, [v["map"] for v in figures["sweep"].values()], "o-", label=name)
+        axes[1].plot(s, [v["mle"] for v in figures["sweep"].values()], "o-", label=name)
+    axes[0].set(xlabel="noise magnitude s", ylabel="mAP", title="mAP vs noise magnitude")
+    axes[1].set(xlabel="noise magnitude s", ylabel="MLE (px)", title="Localization error vs noise magnitude")
+    axes[0].legend()
+    fig.tight_layout()
+    paths.append(out_dir / "detector_noise_magnitude.png")
+    fig.savefig(paths[-1], dpi=100)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    kinds = list(noise.KINDS)
+    for i, (name, figures) in enumerate(detectors.items()):
+        ax.bar(np.arange(len(kinds)) + i * width, [figures["noise_types"][k]["map"] for k in kinds], width, label=name)
+    ax.set_xticks(np.arange(len(kinds)) + 0.4 - width / 2, kinds)
+    ax.set(ylabel="mAP", title="mAP per noise type (s = 1)")
+    ax.legend()
+    fig.tight_layout()
+    paths.append(out_dir / "detector_noise_types.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close("all")
+    return paths

@@ -1,0 +1,99 @@
+"""MagicPoint: a VGG-style fully convolutional corner detector with a 65-channel cell softmax."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from frontend.cells import CELL
+from frontend.nets import fold_batchnorm, vgg_block
+from frontend.points import check_image, extract_points
+
+WEIGHTS = Path(__file__).parent / "weights"
+
+
+@dataclass(frozen=True)
+class MagicPointConfig:
+    """Encoder widths (two 3x3 VGG blocks per stage; a 2x2 max-pool after each of the first three
+    stages) and the width of the 3x3 layer before the 1x1 head to 65 channels."""
+
+    widths: tuple[int, int, int, int] = (8, 8, 16, 16)
+    head: int = 32
+
+
+VARIANTS = {
+    "S": MagicPointConfig((8, 8, 16, 16), 32),
+    "L": MagicPointConfig((64, 64, 128, 128), 256),
+}
+
+
+class MagicPointNet(nn.Module):
+    """(B, 1, H, W) float image in [0, 1] -> (B, 65, H/8, W/8) logits."""
+
+    def __init__(self, config: MagicPointConfig = VARIANTS["S"]):
+        super().__init__()
+        self.config = config
+        layers, channels = [], 1
+        for stage, width in enumerate(config.widths):
+            layers += [vgg_block(channels, width), vgg_block(width, width)]
+            channels = width
+            if stage < 3:
+                layers.append(nn.MaxPool2d(2))
+        self.encoder = nn.Sequential(*layers)
+        self.head = nn.Sequential(vgg_block(channels, config.head), nn.Conv2d(config.head, CELL * CELL + 1, 1))
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encoder(image))
+
+
+def cells_to_heatmap(cells: torch.Tensor) -> torch.Tensor:
+    """(B, 65, Hc, Wc) cell softmax -> (B, Hc*8, Wc*8) probabilities: dustbin dropped, depth to space."""
+    return nn.functional.pixel_shuffle(cells[:, : CELL * CELL], CELL)[:, 0]
+
+
+def _as_tensor(image: np.ndarray) -> torch.Tensor:
+    image = check_image(image, CELL)
+    return torch.from_numpy(image).float().div_(255.0)[None, None]
+
+
+class MagicPoint:
+    """The shipped MagicPoint, ready for inference (BatchNorm folded, eval mode).
+
+    ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels) and ``top_k`` set point extraction.
+    """
+
+    def __init__(self, net: MagicPointNet, threshold: float = 0.015, nms_radius: int = 4, border: int = 4,
+                 top_k: int | None = None):
+        self.net = fold_batchnorm(net)
+        self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
+
+    @classmethod
+    def pretrained(cls, variant: str = "S", path: str | Path | None = None, **options) -> "MagicPoint":
+        """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint."""
+        if variant not in VARIANTS:
+            raise ValueError(f"unknown MagicPoint variant {variant!r}; expected one of {', '.join(VARIANTS)}")
+        path = Path(path) if path else WEIGHTS / f"magicpoint_{variant}.pt"
+        if not path.exists():
+            raise FileNotFoundError(f"no MagicPoint weights at {path}; train them with `deepslam train magicpoint`")
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        net = MagicPointNet(MagicPointConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                                for k, v in state["config"].items()}))
+        net.load_state_dict(state["model"])
+        return cls(net, **options)
+
+    @torch.inference_mode()
+    def cells(self, image: np.ndarray) -> np.ndarray:
+        """Cell softmax, float32 (65, H/8, W/8): the input format of MagicWarp."""
+        return torch.softmax(self.net(_as_tensor(image)), dim=1)[0].numpy()
+
+    @torch.inference_mode()
+    def heatmap(self, image: np.ndarray) -> np.ndarray:
+        """Per-pixel corner probability, float32 (H, W)."""
+        return cells_to_heatmap(torch.softmax(self.net(_as_tensor(image)), dim=1))[0].numpy()
+
+    def detect(self, image: np.ndarray) -> np.ndarray:
+        """Corners float32 (N, 3) [x, y, score] sorted by descending score."""
+        return extract_points(self.heatmap(image), self.threshold, self.nms_radius, self.border, self.top_k)

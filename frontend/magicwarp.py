@@ -1,0 +1,145 @@
+"""MagicWarp: a homography from two point images, and descriptor-free matching with it."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from frontend.cells import CELL, points_to_cells_batch
+from frontend.nets import fold_batchnorm, vgg_block
+
+WEIGHTS = Path(__file__).parent / "weights"
+
+
+@dataclass(frozen=True)
+class MagicWarpConfig:
+    """Encoder widths (two VGG blocks per stage, a 2x2 max-pool after each stage), the grid the
+    features are pooled to before the fully connected layers, and the hidden FC width."""
+
+    widths: tuple[int, ...] = (32, 64, 64, 128)
+    pooled: tuple[int, int] = (3, 5)
+    hidden: int = 256
+
+
+class MagicWarpNet(nn.Module):
+    """(B, 130, Hc, Wc) concatenated cell tensors -> (B, 3, 3) homography in normalised coordinates
+    ([-1, 1] over pixel centres), ``H[2, 2] == 1``."""
+
+    def __init__(self, config: MagicWarpConfig = MagicWarpConfig()):
+        super().__init__()
+        self.config = config
+        layers, channels = [], 2 * (CELL * CELL + 1)
+        for stage in range(0, len(config.widths), 2):
+            for width in config.widths[stage:stage + 2]:
+                layers.append(vgg_block(channels, width))
+                channels = width
+            layers.append(nn.MaxPool2d(2))
+        self.encoder = nn.Sequential(*layers[:-1], nn.AdaptiveAvgPool2d(config.pooled))
+        self.head = nn.Sequential(nn.Flatten(), nn.Linear(channels * config.pooled[0] * config.pooled[1], config.hidden),
+                                  nn.ReLU(inplace=True), nn.Linear(config.hidden, 9))
+        last = self.head[-1]
+        nn.init.normal_(last.weight, std=1e-3)
+        with torch.no_grad():
+            last.bias.copy_(torch.eye(3).flatten())
+
+    def forward(self, cells: torch.Tensor) -> torch.Tensor:
+        H = self.head(self.encoder(cells)).view(-1, 3, 3)
+        return H / H[:, 2:3, 2:3]
+
+
+def normalizer(size: tuple[int, int]) -> np.ndarray:
+    """N (3, 3) mapping pixel coordinates of an image of ``size`` (H, W) to [-1, 1]."""
+    h, w = size
+    return np.array([[2 / (w - 1), 0, -1], [0, 2 / (h - 1), -1], [0, 0, 1]])
+
+
+def warp_loss(H: torch.Tensor, true_a: torch.Tensor, true_b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean over true matches of ||H x_a - x_b||^2 in normalised coordinates.
+
+    H (B, 3, 3); true_a, true_b (B, M, 2); mask (B, M) bool marks real (not padding) matches.
+    """
+    projected = true_a @ H[:, :2, :2].transpose(1, 2) + H[:, None, :2, 2]
+    depth = true_a @ H[:, 2:, :2].transpose(1, 2) + H[:, None, 2:, 2]
+    error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1)
+    return (error * mask).sum() / mask.sum().clamp(min=1)
+
+
+def _as_points(points: np.ndarray, name: str) -> np.ndarray:
+    points = np.asarray(points, np.float64)
+    if points.ndim != 2 or points.shape[1] < 2:
+        raise ValueError(f"{name} must be an (N, 2) or (N, 3) array of (x, y[, score]), got shape {points.shape}")
+    return points[:, :2]
+
+
+class MagicWarp:
+    """The shipped MagicWarp, ready for inference (BatchNorm folded, eval mode)."""
+
+    def __init__(self, net: MagicWarpNet):
+        self.net = fold_batchnorm(net)
+
+    @classmethod
+    def pretrained(cls, path: str | Path | None = None) -> "MagicWarp":
+        """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint."""
+        path = Path(path) if path else WEIGHTS / "magicwarp.pt"
+        if not path.exists():
+            raise FileNotFoundError(f"no MagicWarp weights at {path}; train them with `deepslam train magicwarp`")
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        net = MagicWarpNet(MagicWarpConfig(**state["config"]))
+        net.load_state_dict(state["model"])
+        return cls(net)
+
+    @torch.inference_mode()
+    def estimate_batch(self, pairs: list[tuple[np.ndarray, np.ndarray]], image_size: tuple[int, int]) -> np.ndarray:
+        """Homographies (B, 3, 3) float64 in pixels for several (points_a, points_b) pairs at once."""
+        cells = np.concatenate([points_to_cells_batch([a for a, _ in pairs], image_size),
+                                points_to_cells_batch([b for _, b in pairs], image_size)], axis=1)
+        H = self.net(torch.from_numpy(cells)).double().numpy()
+        N = normalizer(image_size)
+        H = np.linalg.inv(N) @ H @ N
+        return H / H[:, 2:3, 2:3]
+
+    def estimate(self, points_a: np.ndarray, points_b: np.ndarray, image_size: tuple[int, int] = (120, 160),
+                 iterations: int = 1) -> np.ndarray:
+        """Homography (3, 3) float64 mapping pixel points of image a to image b, ``H[2, 2] == 1``.
+
+        With ``iterations`` > 1 it warps ``points_a`` by the estimate so far, estimates again and
+        composes (the paper's H = H2 H1 applied to a).
+        """
+        if iterations < 1:
+            raise ValueError(f"iterations must be at least 1, got {iterations}")
+        points_a, points_b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
+        H = np.eye(3)
+        for _ in range(iterations):
+            H = self.estimate_batch([(warp_points(points_a, H), points_b)], image_size)[0] @ H
+            H /= H[2, 2]
+        return H
+
+
+def warp_points(points: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """Apply a homography to (N, 2) points; returns (N, 2) float64."""
+    moved = np.asarray(points, np.float64)[:, :2] @ H[:, :2].T + H[:, 2]
+    return moved[:, :2] / moved[:, 2:3]
+
+
+def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: float = 4.0) -> np.ndarray:
+    """Index pairs (K, 2) int: warp ``points_a`` by ``H`` into b and snap each to its nearest point of b.
+
+    Pairs are taken in order of increasing distance, each point used at most once (mutually
+    exclusive); pairs farther apart than ``max_dist`` pixels are not matches.
+    """
+    a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    distance = np.linalg.norm(warp_points(a, H)[:, None] - b[None], axis=2)
+    rows, cols = np.nonzero(distance <= max_dist)
+    order = np.argsort(distance[rows, cols], kind="stable")
+    used_a, used_b, pairs = set(), set(), []
+    for i, j in zip(rows[order], cols[order]):
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    return np.array(pairs, np.int64).reshape(-1, 2)

@@ -1,0 +1,39 @@
+"""Building blocks shared by MagicPoint and MagicWarp: the VGG block and BatchNorm folding."""
+from __future__ import annotations
+
+import copy
+
+import torch
+from torch import nn
+
+
+def vgg_block(in_channels: int, out_channels: int, kernel_size: int = 3) -> nn.Sequential:
+    """Convolution (same padding), BatchNorm, ReLU."""
+    return nn.Sequential(
+        nn.Conv2d(in_channels, out_channels, kernel_size, padding=kernel_size // 2),
+        nn.BatchNorm2d(out_channels),
+        nn.ReLU(inplace=True),
+    )
+
+
+def fold_batchnorm(model: nn.Module) -> nn.Module:
+    """A copy of ``model`` in eval mode with every Conv2d+BatchNorm2d pair merged into the Conv2d.
+
+    The BatchNorm becomes an identity; outputs equal the unfolded model's in eval mode.
+    """
+    folded = copy.deepcopy(model).eval()
+    for module in folded.modules():
+        children = list(module.named_children())
+        for (_, conv), (bn_name, bn) in zip(children, children[1:]):
+            if isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d):
+                scale = bn.weight.detach() / torch.sqrt(bn.running_var + bn.eps)
+                bias = conv.bias.detach() if conv.bias is not None else torch.zeros_like(bn.running_mean)
+                conv.weight = nn.Parameter(conv.weight.detach() * scale[:, None, None, None])
+                conv.bias = nn.Parameter((bias - bn.running_mean) * scale + bn.bias.detach())
+                setattr(module, bn_name, nn.Identity())
+    return folded
+
+
+def parameter_bytes(model: nn.Module) -> int:
+    """Size of the model's parameters and buffers in float32 bytes."""
+    return sum(t.numel() * 4 for t in list(model.parameters()) + list(model.buffers()) if t.is_floating_point())

@@ -1,0 +1,59 @@
+"""Point extraction from score maps: threshold, non-maximum suppression, border removal, top-k.
+
+Shared by MagicPoint and the classical detectors, so every detector is scored the same way.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
+    """Validate a grayscale uint8 HxW image (non-empty, sides divisible by ``multiple_of``)."""
+    image = np.asarray(image)
+    if image.ndim != 2:
+        raise ValueError(f"expected a grayscale HxW image, got an array of shape {image.shape}")
+    if image.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 image, got dtype {image.dtype}")
+    if image.size == 0:
+        raise ValueError(f"expected a non-empty image, got shape {image.shape}")
+    if image.shape[0] % multiple_of or image.shape[1] % multiple_of:
+        raise ValueError(f"image height and width must be divisible by {multiple_of}, got {image.shape}")
+    return image
+
+
+def nms_points(points: np.ndarray, radius: float) -> np.ndarray:
+    """Greedy non-maximum suppression of (N, 3) [x, y, score] points: keep the best-scoring point
+    and drop every other within ``radius`` pixels, in order of score. Returns the kept points sorted
+    by descending score."""
+    order = np.argsort(-points[:, 2], kind="stable")
+    points = points[order]
+    if radius <= 0 or len(points) < 2:
+        return points
+    suppressed = np.zeros(len(points), bool)
+    xy = points[:, :2]
+    for i in range(len(points)):
+        if not suppressed[i]:
+            close = np.sum((xy[i + 1:] - xy[i]) ** 2, axis=1) <= radius ** 2
+            suppressed[i + 1:] |= close
+    return points[~suppressed]
+
+
+def extract_points(scores: np.ndarray, threshold: float, nms_radius: int = 4, border: int = 4,
+                   top_k: int | None = None) -> np.ndarray:
+    """Points of a score map (H, W): local maxima in a (2r+1)^2 window above ``threshold``, at least
+    ``border`` pixels from the edge, then greedy NMS with radius r, best ``top_k`` kept.
+
+    Returns float32 (N, 3) [x, y, score] sorted by descending score.
+    """
+    scores = np.asarray(scores, np.float32)
+    if nms_radius > 0:
+        window = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * nms_radius + 1, 2 * nms_radius + 1))
+        peaks = (scores >= cv2.dilate(scores, window)) & (scores > threshold)
+    else:
+        peaks = scores > threshold
+    if border > 0:
+        peaks[:border], peaks[-border:], peaks[:, :border], peaks[:, -border:] = False, False, False, False
+    y, x = np.nonzero(peaks)
+    points = nms_points(np.stack([x, y, scores[y, x]], 1).astype(np.float32), nms_radius)
+    return points[:top_k] if top_k else points

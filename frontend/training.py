@@ -1,0 +1,78 @@
+"""A small resumable training loop shared by MagicPoint and MagicWarp.
+
+Checkpoints (``last.pt``, and ``best.pt`` by the validation score) hold the model, optimiser, step,
+config and the random generator state, so a run killed at any point resumes where its last
+checkpoint left it. Progress shows loss, throughput and the latest validation figures.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+
+def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int,
+                    rng: np.random.Generator, config: Any, extra: dict) -> None:
+    """Write a checkpoint atomically (a killed write never leaves a broken file)."""
+    state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
+             "rng": rng.bit_generator.state, "config": asdict(model.config), "train_config": asdict(config), **extra}
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)
+
+
+def train(model: torch.nn.Module, config: Any, out_dir: Path,
+          step_fn: Callable[[int, np.random.Generator], dict[str, torch.Tensor]],
+          validate_fn: Callable[[torch.nn.Module], dict[str, float]], score_key: str) -> dict:
+    """Run ``config.iterations`` optimisation steps (resuming from ``out_dir/last.pt``).
+
+    ``step_fn(step, rng)`` builds a batch and returns {"loss": tensor, ...}; ``validate_fn(model)``
+    returns figures, ``score_key`` among them (higher is better) choosing ``best.pt``.
+    Returns the last validation figures.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    rng = np.random.default_rng(config.seed)
+    torch.manual_seed(config.seed)
+    step, best, elapsed, history = 0, -np.inf, 0.0, []
+    last = out_dir / "last.pt"
+    if last.exists():
+        state = torch.load(last, map_location="cpu", weights_only=False)
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        rng.bit_generator.state = state["rng"]
+        step, best, elapsed, history = state["step"], state["best"], state["elapsed"], state["history"]
+        print(f"resuming from {last} at step {step}")
+    figures: dict[str, float] = history[-1] if history else {}
+    bar = tqdm(total=config.iterations, initial=step, unit="it", dynamic_ncols=True)
+    started = time.time() - elapsed
+    while step < config.iterations:
+        model.train()
+        out = step_fn(step, rng)
+        optimizer.zero_grad()
+        out["loss"].backward()
+        optimizer.step()
+        step += 1
+        bar.update(1)
+        bar.set_postfix({k: f"{float(v):.4g}" for k, v in out.items()} | {k: f"{v:.3g}" for k, v in figures.items()
+                                                                          if k != "step"})
+        if step % config.validate_every == 0 or step == config.iterations:
+            model.eval()
+            with torch.no_grad():
+                figures = {"step": step, "wall_s": round(time.time() - started, 1), **validate_fn(model)}
+            history.append(figures)
+            bar.write(json.dumps(figures))
+            extra = {"elapsed": time.time() - started, "history": history}
+            if figures[score_key] > best:
+                best = figures[score_key]
+                save_checkpoint(out_dir / "best.pt", model, optimizer, step, rng, config, {"best": best, **extra})
+            save_checkpoint(last, model, optimizer, step, rng, config, {"best": best, **extra})
+    bar.close()
+    (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    return figures

@@ -1,0 +1,134 @@
+"""MagicWarp training pairs: 3D point clouds on simple geometry seen by two virtual cameras.
+
+Points are cast from camera A onto a scene of planes, spheres and boxes (the first hit along each
+ray, so occlusion in A is right), and both cameras come from a random trajectory (piecewise-linear
+translation, rotation about random axes). Pairs with less than ``min_overlap`` of A's points visible
+in B are redrawn. Occlusion in camera B is not modelled.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.camera import intrinsics, invert, pose, project, transform
+from sim.homography import inside
+from sim.trajectories import random_walk
+
+GEOMETRIES = ("plane", "sphere", "cube", "mixed")
+
+
+@dataclass(frozen=True)
+class PairConfig:
+    """Ranges of a training pair. ``motion`` scales the camera motion (a curriculum knob, 1 = full)."""
+
+    size: tuple[int, int] = (120, 160)
+    points: tuple[int, int] = (5, 200)
+    motion: float = 1.0
+    max_step: float = 0.6          # translation between the two frames at motion 1, in units of scene depth
+    max_rotation: float = 0.45     # radians between the two frames at motion 1
+    min_overlap: float = 0.3
+    match_dropout: float = 0.5     # fraction of matches broken by removing one side
+    point_dropout: float = 0.25    # fraction of the remaining points removed in each image
+    max_extra: float = 0.5         # up to this fraction of spurious points added to each image
+    fov_deg: tuple[float, float] = (55.0, 85.0)
+
+
+@dataclass
+class PointPair:
+    """Two point images and the true correspondences that supervise the loss.
+
+    points_a (Na, 2), points_b (Nb, 2): the inputs after dropout and spurious points;
+    true_a (M, 2), true_b (M, 2): projections of the same 3D points in A and B (all co-visible ones).
+    """
+
+    points_a: np.ndarray
+    points_b: np.ndarray
+    true_a: np.ndarray
+    true_b: np.ndarray
+
+
+def _cast(rays: np.ndarray, rng: np.random.Generator, geometry: str, depth: float) -> np.ndarray:
+    """Distances along unit rays (N, 3) from the origin to the first hit of a random scene (inf: miss)."""
+    hits = np.full(len(rays), np.inf)
+
+    def keep(t):
+        np.minimum(hits, np.where((t > 1e-6) & np.isfinite(t), t, np.inf), out=hits)
+
+    if geometry in ("plane", "mixed"):
+        normal = np.array([0.0, 0.0, -1.0]) + rng.uniform(-0.8, 0.8, 3) * [1, 1, 0]
+        normal /= np.linalg.norm(normal)
+        point = np.array([0.0, 0.0, depth * (1.6 if geometry == "mixed" else 1.0)])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            keep((point @ normal) / (rays @ normal))
+    objects = {"sphere": ["sphere"], "cube": ["cube"], "mixed": list(rng.choice(["sphere", "cube"], 2))}.get(geometry, [])
+    for kind in objects:
+        centre = np.array([*rng.uniform(-0.3, 0.3, 2) * depth, depth * rng.uniform(0.8, 1.2)])
+        radius = depth * rng.uniform(0.2, 0.45)
+        if kind == "sphere":
+            b = rays @ centre
+            disc = b ** 2 - (centre @ centre - radius ** 2)
+            with np.errstate(invalid="ignore"):
+                keep(np.where(disc >= 0, b - np.sqrt(disc), np.inf))
+        else:
+            axis = rng.normal(size=3)
+            R = pose(axis / np.linalg.norm(axis) * rng.uniform(0, np.pi), np.zeros(3))[:3, :3]
+            local_dirs, local_origin = rays @ R, -centre @ R
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1 = (-radius - local_origin) / local_dirs
+                t2 = (radius - local_origin) / local_dirs
+            near = np.nanmax(np.minimum(t1, t2), axis=1)
+            far = np.nanmin(np.maximum(t1, t2), axis=1)
+            keep(np.where(near <= far, near, np.inf))
+    return hits
+
+
+def sample_pair(rng: np.random.Generator, config: PairConfig = PairConfig(), geometry: str | None = None) -> PointPair:
+    """One training pair (see module docstring); ``geometry`` in ``GEOMETRIES`` or random."""
+    size = config.size
+    h, w = size
+    for _ in range(100):
+        kind = geometry or str(rng.choice(GEOMETRIES, p=[0.4, 0.15, 0.15, 0.3]))
+        K = intrinsics(size, rng.uniform(*config.fov_deg))
+        count = int(np.exp(rng.uniform(np.log(config.points[0]), np.log(config.points[1] + 1))))
+        pixels = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (count * 2, 2))
+        rays = np.c_[pixels, np.ones(len(pixels))] @ np.linalg.inv(K).T
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        depth = rng.uniform(2.0, 6.0)
+        distance = _cast(rays, rng, kind, depth)
+        hit = np.isfinite(distance)
+        if hit.sum() < max(config.points[0], 4):
+            continue
+        cloud = (rays * distance[:, None])[hit][:count]
+        gap = int(rng.integers(1, 6))
+        walk = random_walk(rng, gap + 1, config.motion * config.max_step * depth * rng.uniform(0, 1) / gap,
+                           config.motion * config.max_rotation * rng.uniform(0, 1) / gap, segment_frames=2)
+        uv_a, _ = project(cloud, K)
+        uv_b, z_b = project(transform(invert(walk[-1]), cloud), K)
+        visible = (z_b > 0.1) & inside(np.nan_to_num(uv_b, nan=-1e9), size)
+        if visible.mean() < config.min_overlap or visible.sum() < 4:
+            continue
+        return _with_dropout(rng, config, uv_a, uv_b, visible)
+    raise RuntimeError("could not draw a point pair with enough overlap; check PairConfig")
+
+
+def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray, uv_b: np.ndarray,
+                  visible: np.ndarray) -> PointPair:
+    """Apply match dropout, point dropout and spurious points; keep all true matches for the loss."""
+    size = config.size
+    keep_a = np.ones(len(uv_a), bool)
+    keep_b = visible.copy()
+    broken = visible & (rng.random(len(uv_a)) < config.match_dropout)
+    side = rng.random(len(uv_a)) < 0.5
+    keep_a &= ~(broken & side)
+    keep_b &= ~(broken & ~side)
+    keep_a &= rng.random(len(uv_a)) >= config.point_dropout
+    keep_b &= rng.random(len(uv_a)) >= config.point_dropout
+    h, w = size
+
+    def with_extra(points):
+        extra = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (int(len(points) * rng.uniform(0, config.max_extra)), 2))
+        merged = np.vstack([points, extra])
+        return merged[rng.permutation(len(merged))]
+
+    return PointPair(with_extra(uv_a[keep_a]), with_extra(uv_b[keep_b]), uv_a[visible], uv_b[visible])
