@@ -34,6 +34,78 @@ def _eval_detector(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
 
 
+def _odometry_config(args: argparse.Namespace):
+    from backend.odometry import OdometryConfig
+    return OdometryConfig(method=args.method, scale=args.scale, plane_distance=args.plane_distance,
+                          keyframe_gap=args.keyframe_gap)
+
+
+def _tracker_options(args: argparse.Namespace) -> dict:
+    return {"iterations": args.warp_iterations, "ransac": args.ransac} if args.frontend == "magic" else {}
+
+
+def _print_drift(drift: dict, scale: str) -> None:
+    print(f"drift (scale: {scale}{' = ground-truth step lengths' if scale == 'gt' else ' = known distance to the dominant plane'})")
+    for key, value in drift.items():
+        print(f"  {key:<16} {value:.4f}" if isinstance(value, float) else f"  {key:<16} {value}")
+
+
+def _run(args: argparse.Namespace) -> None:
+    from backend.run import simulate
+    from sim.scenario import ScenarioConfig
+    scenario = ScenarioConfig(world=args.world, trajectory=args.trajectory, frames=args.frames, speed=args.speed,
+                              fps=args.fps, noise=args.noise, lighting=args.lighting, seed=args.seed,
+                              size=tuple(args.size))
+    result = simulate(scenario, args.frontend, _odometry_config(args), args.out, {"version": _version()},
+                      **_tracker_options(args))
+    _print_drift(result["drift"], result["scale"])
+    print(f"  (online estimates, as logged; the final smoothed graph has ATE SE3 {result['smoothed_ate_se3']:.4f})")
+    print(f"wrote {args.out}")
+
+
+def _replay(args: argparse.Namespace) -> None:
+    from backend.run import replay
+    result = replay(args.log, args.frontend, _odometry_config(args), args.out, {"version": _version()},
+                    **_tracker_options(args))
+    if result["drift"] is not None:
+        _print_drift(result["drift"], result["scale"])
+    print(f"wrote {args.out}")
+
+
+def _drift(args: argparse.Namespace) -> None:
+    from backend import analysis
+    results = analysis.analyse(args.logs, args.delta)
+    print("\n".join(analysis.table_lines(results)))
+    for path in analysis.save_plots(args.logs, args.out, args.delta):
+        print(f"wrote {path}")
+    if args.tum:
+        for log in args.logs:
+            for path in analysis.export_tum(log, args.out):
+                print(f"wrote {path}")
+
+
+def _version() -> str:
+    from importlib.metadata import version
+    return version("deepslam")
+
+
+def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...]) -> None:
+    from backend.relpose import METHODS
+    from backend.odometry import SCALES
+    parser.add_argument("--frontend", choices=frontends, default="magic",
+                        help="magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections")
+    parser.add_argument("--method", choices=METHODS, default="auto",
+                        help="relative pose: auto (ORB-SLAM H/F selection), homography, essential, or pycolmap")
+    parser.add_argument("--scale", choices=SCALES, default="gt",
+                        help="monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane")
+    parser.add_argument("--plane-distance", type=float, default=None,
+                        help="first camera's distance to the dominant plane for --scale plane (simulation: known)")
+    parser.add_argument("--keyframe-gap", type=int, default=5,
+                        help="frames between keyframes linked by extra factors (and used for model selection)")
+    parser.add_argument("--warp-iterations", type=int, default=1, help="MagicWarp iterations (magic front-end)")
+    parser.add_argument("--ransac", action="store_true", help="fundamental-matrix RANSAC on MagicWarp matches")
+
+
 def _common_training_options(parser: argparse.ArgumentParser, iterations: int, batch: int, lr: float) -> None:
     parser.add_argument("--iterations", type=int, default=iterations, help="total optimisation steps")
     parser.add_argument("--batch", type=int, default=batch, help="examples per step")
@@ -60,6 +132,33 @@ def build_parser() -> argparse.ArgumentParser:
     _common_training_options(point, iterations=8000, batch=32, lr=1e-3)
     point.set_defaults(func=_train_magicpoint)
 
+    run = commands.add_parser("run", help="run a simulated trajectory end to end, log it to MCAP, print drift")
+    run.add_argument("--world", choices=("plane", "room"), default="plane", help="simulated world")
+    run.add_argument("--trajectory", choices=("circle", "figure8", "line", "random"), default="circle", help="camera path")
+    run.add_argument("--frames", type=int, default=60, help="number of frames")
+    run.add_argument("--speed", type=float, default=0.5, help="camera speed (m/s)")
+    run.add_argument("--fps", type=float, default=10.0, help="frame rate (frames per second)")
+    run.add_argument("--noise", type=float, default=0.0, help="photometric noise magnitude s (0 clean, 1 full, 2 random)")
+    run.add_argument("--lighting", type=float, default=0.0, help="amplitude of a slow global brightness change (0.3 = 30%%)")
+    run.add_argument("--size", type=int, nargs=2, default=(120, 160), metavar=("H", "W"), help="image size, multiples of 8")
+    run.add_argument("--seed", type=int, default=0, help="seed of the world, trajectory and noise")
+    run.add_argument("--out", type=Path, default=Path("out/run.mcap"), help="MCAP log to write")
+    _pipeline_options(run, ("magic", "classical", "oracle"))
+    run.set_defaults(func=_run)
+
+    replay = commands.add_parser("replay", help="feed a logged run through the pipeline again, into a new log")
+    replay.add_argument("log", type=Path, help="MCAP log written by `deepslam run`")
+    replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
+    _pipeline_options(replay, ("magic", "classical"))
+    replay.set_defaults(func=_replay)
+
+    drift = commands.add_parser("drift", help="ATE/RPE/final drift of logs, side by side, with plots")
+    drift.add_argument("logs", type=Path, nargs="+", help="MCAP logs holding /groundtruth/pose and /estimate/pose")
+    drift.add_argument("--delta", type=int, default=1, help="frame delta of the RPE")
+    drift.add_argument("--out", type=Path, default=Path("out/drift"), help="folder for the PNG plots (and TUM files)")
+    drift.add_argument("--tum", action="store_true", help="also export both trajectories in TUM format")
+    drift.set_defaults(func=_drift)
+
     evaluate = commands.add_parser("eval", help="evaluation experiments of the paper")
     evals = evaluate.add_subparsers(dest="experiment", required=True)
     detector = evals.add_parser("detector", help="Synthetic Shapes mAP/MLE table, per category, noise sweeps")
@@ -76,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (ValueError, FileNotFoundError) as error:
+    except (ValueError, FileNotFoundError, RuntimeError) as error:
         print(f"deepslam: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

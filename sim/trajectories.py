@@ -68,11 +68,12 @@ def make(kind: str, frames: int, speed: float = 0.5, fps: float = 30.0, radius: 
         eyes = np.stack([distance - distance[-1] / 2, np.full(frames, -radius), np.full(frames, height)], 1) + target
         looks = eyes + np.array([0.0, radius, 0.0])
     else:
-        phase = distance / radius
+        orbit = 0.3 * radius  # the camera circles in a plane facing the target, looking near it
+        phase = distance / orbit
         if kind == "circle":
-            offsets = np.stack([np.sin(phase), -np.cos(phase), np.zeros(frames)], 1) * radius * 0.3
-        else:
-            offsets = np.stack([np.sin(phase), -np.zeros(frames), np.sin(2 * phase) / 2], 1) * radius * 0.3
+            offsets = np.stack([np.sin(phase), np.zeros(frames), 1 - np.cos(phase)], 1) * orbit
+        else:  # a figure of eight (speed is exact at the crossing, approximate elsewhere)
+            offsets = np.stack([np.sin(phase), np.zeros(frames), np.sin(2 * phase) / 2], 1) * orbit
         eyes = target + np.array([0.0, -radius, height]) + offsets
         looks = np.repeat(target[None], frames, 0) + offsets * 0.5
     return Trajectory(np.stack([look_at(e, t) for e, t in zip(eyes, looks)]), stamps)

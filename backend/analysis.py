@@ -1,0 +1,87 @@
+"""Drift analysis from logs alone: figures side by side, plots, TUM export."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from backend import drift
+from logs.frames import quaternion_from_matrix
+from logs.reader import LogError, read_frames, read_metadata
+
+
+def load_trajectories(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stamps_ns (N,), ground truth (N, 4, 4), estimate (N, 4, 4)) of the frames that have both."""
+    stamps, truth, estimate = [], [], []
+    for frame in read_frames(path):
+        if frame.T_groundtruth is not None and frame.T_estimate is not None:
+            stamps.append(frame.stamp_ns)
+            truth.append(frame.T_groundtruth)
+            estimate.append(frame.T_estimate)
+    if len(stamps) < 2:
+        raise LogError(f"{path}: fewer than 2 frames with both /groundtruth/pose and /estimate/pose")
+    return np.array(stamps, np.int64), np.stack(truth), np.stack(estimate)
+
+
+def analyse(paths: list[str | Path], delta: int = 1) -> dict[str, dict]:
+    """Drift figures per log, with its front-end and scale method from the log's metadata."""
+    results = {}
+    for path in paths:
+        _, truth, estimate = load_trajectories(path)
+        meta = read_metadata(path)
+        results[str(path)] = {**drift.summary(estimate, truth, delta), "frontend": meta.get("frontend", "?"),
+                              "scale": meta.get("odometry", {}).get("scale", "?")}
+    return results
+
+
+def table_lines(results: dict[str, dict]) -> list[str]:
+    header = f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE t':>8} {'RPE deg':>8} {'final %':>8} {'path m':>7}"
+    rows = [header]
+    for path, r in results.items():
+        rows.append(f"{Path(path).name[-28:]:<28} {r['frontend']:<9} {r['scale']:<6} {r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
+                    f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} {r['path_length']:>7.2f}")
+    return rows
+
+
+def save_plots(paths: list[str | Path], out_dir: Path, delta: int = 1) -> list[Path]:
+    """PNG plots: top view (x-y) of ground truth and estimates, translation error over time, RPE distribution."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    for index, path in enumerate(paths):
+        stamps, truth, estimate = load_trajectories(path)
+        label = Path(path).stem
+        if index == 0:
+            axes[0].plot(truth[:, 0, 3], truth[:, 1, 3], "k-", lw=2, label="ground truth")
+        axes[0].plot(estimate[:, 0, 3], estimate[:, 1, 3], "-", label=label)
+        seconds = (stamps - stamps[0]) / 1e9
+        axes[1].plot(seconds, np.linalg.norm(estimate[:, :3, 3] - truth[:, :3, 3], axis=1), label=label)
+        axes[2].hist(drift.rpe(estimate, truth, delta)[0], bins=30, alpha=0.5, label=label)
+    axes[0].set(title="top view (x, y)", xlabel="x (m)", ylabel="y (m)")
+    axes[0].axis("equal")
+    axes[1].set(title="translation error over time (no alignment)", xlabel="time (s)", ylabel="error (m)")
+    axes[2].set(title=f"RPE translation, delta = {delta} frame(s)", xlabel="error (m)", ylabel="frames")
+    for ax in axes:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = out_dir / "drift.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]
+
+
+def export_tum(path: str | Path, out_dir: Path) -> list[Path]:
+    """Write <log>.groundtruth.tum and <log>.estimate.tum: "t x y z qx qy qz qw" per line, t in seconds."""
+    stamps, truth, estimate = load_trajectories(path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, poses in (("groundtruth", truth), ("estimate", estimate)):
+        target = out_dir / f"{Path(path).stem}.{name}.tum"
+        lines = [f"{t / 1e9:.9f} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *quaternion_from_matrix(T[:3, :3])))
+                 for t, T in zip(stamps, poses)]
+        target.write_text("\n".join(lines) + "\n")
+        written.append(target)
+    return written

@@ -1,0 +1,71 @@
+"""Trajectory drift metrics: ATE after SE(3)/Sim(3) Umeyama alignment, RPE, final drift.
+
+Trajectories are (N, 4, 4) ``T_world_cam`` arrays with the same timestamps (associated frames).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares (R, t, s) with target ~ s R source + t, for (N, 3) point sets (Umeyama 1991)."""
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    xs, xt = source - mu_s, target - mu_t
+    U, D, Vt = np.linalg.svd(xt.T @ xs / len(source))
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    variance = (xs ** 2).sum() / len(source)
+    s = float(np.trace(np.diag(D) @ S) / variance) if with_scale and variance > 0 else 1.0
+    return R, mu_t - s * R @ mu_s, s
+
+
+def align(estimate: np.ndarray, truth: np.ndarray, with_scale: bool) -> np.ndarray:
+    """The estimate's poses moved (and scaled with Sim(3)) onto the ground truth by their positions."""
+    R, t, s = umeyama(estimate[:, :3, 3], truth[:, :3, 3], with_scale)
+    aligned = estimate.copy()
+    aligned[:, :3, :3] = R @ estimate[:, :3, :3]
+    aligned[:, :3, 3] = s * estimate[:, :3, 3] @ R.T + t
+    return aligned
+
+
+def ate_rmse(estimate: np.ndarray, truth: np.ndarray, with_scale: bool = False) -> float:
+    """Absolute trajectory error: RMSE of positions after SE(3) (or Sim(3)) alignment."""
+    aligned = align(estimate, truth, with_scale)
+    return float(np.sqrt(np.mean(np.sum((aligned[:, :3, 3] - truth[:, :3, 3]) ** 2, 1))))
+
+
+def _rotation_angle(R: np.ndarray) -> np.ndarray:
+    return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+
+
+def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Relative pose errors over frame pairs ``delta`` apart: (translation errors (M,), rotation
+    errors (M,) in degrees), from E = (T_gt_i^-1 T_gt_j)^-1 (T_est_i^-1 T_est_j)."""
+    if len(estimate) <= delta:
+        return np.zeros(0), np.zeros(0)
+    rel_est = np.linalg.inv(estimate[:-delta]) @ estimate[delta:]
+    rel_gt = np.linalg.inv(truth[:-delta]) @ truth[delta:]
+    error = np.linalg.inv(rel_gt) @ rel_est
+    return np.linalg.norm(error[:, :3, 3], axis=1), np.degrees(_rotation_angle(error[:, :3, :3]))
+
+
+def path_length(poses: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).sum())
+
+
+def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str, float]:
+    """All drift figures: ATE RMSE (SE3, Sim3), RPE means (translation, rotation in degrees) and the
+    final position error as % of the ground-truth path length (no alignment: both start together)."""
+    if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
+        raise ValueError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
+    if len(estimate) < 2:
+        raise ValueError("drift needs at least 2 poses")
+    rpe_t, rpe_r = rpe(estimate, truth, delta)
+    length = path_length(truth)
+    final = np.linalg.norm(estimate[-1, :3, 3] - truth[-1, :3, 3])
+    return {"ate_se3": ate_rmse(estimate, truth, False), "ate_sim3": ate_rmse(estimate, truth, True),
+            "rpe_trans": float(rpe_t.mean()), "rpe_rot_deg": float(rpe_r.mean()),
+            "final_drift_pct": float(100 * final / length) if length > 0 else float("nan"),
+            "path_length": length, "frames": int(len(truth))}

@@ -1,0 +1,209 @@
+"""Two-view relative pose from point correspondences, with OpenCV (default) or pycolmap.
+
+Models: a homography (planar scenes; decomposed with ``cv2.decomposeHomographyMat`` and the
+physically valid solution chosen) or an essential matrix (``cv2.recoverPose``); "auto" scores both
+as ORB-SLAM does and takes the homography when R_H = S_H / (S_H + S_F) > 0.45.
+
+The result ``T_c1_c2`` is the pose of camera 2 in camera 1's frame (X_1 = T_c1_c2 X_2), the
+between-measurement of a pose graph. Monocular translation has no scale: it is a unit vector,
+or, for the homography, ``t / d`` with d the distance of camera 1 to the plane.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+METHODS = ("auto", "homography", "essential", "pycolmap")
+MIN_MATCHES = 8
+STATIC_FLOW_PX = 0.3
+
+
+@dataclass
+class RelativePose:
+    """T_c1_c2 (4, 4) with |t| = 1 (or t/d for a homography); ``model`` is "homography", "essential",
+    "static" (no motion), or "failed" (then T is the identity); ``inliers`` (N,) bool;
+    ``plane_normal`` n (n . X_1 = d on the plane) and ``t_over_d`` |t| / d of the homography (also
+    filled from the dominant plane for essential poses when metric scale comes from it);
+    ``reason`` explains failures and degenerate cases."""
+
+    T_c1_c2: np.ndarray
+    model: str
+    inliers: np.ndarray
+    rotation_only: bool = False
+    plane_normal: np.ndarray | None = None
+    t_over_d: float | None = None
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.model in ("homography", "essential", "static")
+
+    @property
+    def inlier_ratio(self) -> float:
+        return float(self.inliers.mean()) if len(self.inliers) else 0.0
+
+
+def _between(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """T_c1_c2 from OpenCV's X_2 = R X_1 + t."""
+    T = np.eye(4)
+    T[:3, :3] = R.T
+    T[:3, 3] = -R.T @ np.ravel(t)
+    return T
+
+
+def _normalised(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    return cv2.undistortPoints(points.reshape(-1, 1, 2).astype(np.float64), K, None).reshape(-1, 2)
+
+
+def _score_homography(H: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
+    """ORB-SLAM's S_H: symmetric transfer error with chi-square threshold 5.99."""
+    def transfer(a, b, M):
+        moved = cv2.perspectiveTransform(a.reshape(-1, 1, 2), M).reshape(-1, 2)
+        return np.sum((moved - b) ** 2, 1) / sigma ** 2
+
+    e12, e21 = transfer(p1, p2, H), transfer(p2, p1, np.linalg.inv(H))
+    score = np.where(e12 < 5.99, 5.99 - e12, 0) + np.where(e21 < 5.99, 5.99 - e21, 0)
+    return float(score.sum()), (e12 < 5.99) & (e21 < 5.99)
+
+
+def _score_fundamental(F: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
+    """ORB-SLAM's S_F: distances to epipolar lines, threshold 3.84, score offset 5.99."""
+    h1, h2 = np.c_[p1, np.ones(len(p1))], np.c_[p2, np.ones(len(p2))]
+    l2, l1 = h1 @ F.T, h2 @ F
+    num = np.sum(h2 * l2, 1) ** 2
+    e2 = num / (l2[:, 0] ** 2 + l2[:, 1] ** 2 + 1e-12) / sigma ** 2
+    e1 = num / (l1[:, 0] ** 2 + l1[:, 1] ** 2 + 1e-12) / sigma ** 2
+    score = np.where(e2 < 3.84, 5.99 - e2, 0) + np.where(e1 < 3.84, 5.99 - e1, 0)
+    return float(score.sum()), (e1 < 3.84) & (e2 < 3.84)
+
+
+def homography_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray | None = None,
+                    previous_t: np.ndarray | None = None) -> RelativePose:
+    """Relative pose from a homography (estimated with MAGSAC if not given) and its decomposition.
+
+    Of the up to four solutions, keep those with the reference points in front of both cameras
+    (``filterHomographyDecompByVisibleRefpoints`` on normalised points) and the plane facing camera 1,
+    then take the one whose translation agrees best with ``previous_t`` (else the first).
+    """
+    if H is None:
+        H, mask = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
+        if H is None:
+            return _failed(len(p1), "homography estimation failed")
+        inliers = mask.ravel().astype(bool)
+    else:
+        inliers = np.ones(len(p1), bool)
+    count, rotations, translations, normals = cv2.decomposeHomographyMat(H, K)
+    n1, n2 = _normalised(p1[inliers], K), _normalised(p2[inliers], K)
+    good = cv2.filterHomographyDecompByVisibleRefpoints(
+        rotations, normals, n1.reshape(-1, 1, 2).astype(np.float32), n2.reshape(-1, 1, 2).astype(np.float32))
+    candidates = [int(i) for i in np.ravel(good)] if good is not None else list(range(count))
+    # OpenCV's normal satisfies n . X_1 = d > 0 on the plane: a plane in front of camera 1 has n_z > 0
+    candidates = [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
+    magnitudes = [np.linalg.norm(translations[i]) for i in candidates]
+    rotation_only = max(magnitudes) < 1e-3
+    if previous_t is not None and not rotation_only:
+        # X_2 = R X_1 + t: camera 2's centre in frame 1 is -R^T t; compare directions
+        def agreement(i):
+            centre = -rotations[i].T @ translations[i].ravel()
+            return float(centre @ previous_t / (np.linalg.norm(centre) * np.linalg.norm(previous_t) + 1e-12))
+        candidates.sort(key=agreement, reverse=True)
+    best = candidates[0]
+    return RelativePose(_between(rotations[best], translations[best]), "homography", inliers, rotation_only,
+                        normals[best].ravel(), float(np.linalg.norm(translations[best])))
+
+
+def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> RelativePose:
+    """Relative pose from an essential matrix (MAGSAC) and ``cv2.recoverPose`` (cheirality)."""
+    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.USAC_MAGSAC, 0.999, 1.0)
+    if E is None or E.shape != (3, 3):
+        return _failed(len(p1), "essential matrix estimation failed")
+    _, R, t, mask = cv2.recoverPose(E, p1, p2, K, mask=mask)
+    inliers = mask.ravel() > 0
+    if inliers.sum() < MIN_MATCHES:
+        return _failed(len(p1), f"only {inliers.sum()} points passed the cheirality check")
+    return RelativePose(_between(R, t), "essential", inliers)
+
+
+def pycolmap_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, size: tuple[int, int],
+                  max_error: float = 1.0) -> RelativePose:
+    """Relative pose from pycolmap's calibrated two-view geometry (its own model selection);
+    ``max_error`` is its RANSAC threshold in pixels."""
+    import pycolmap
+
+    h, w = size
+    # COLMAP puts the centre of the top-left pixel at (0.5, 0.5): shift points and principal point
+    camera = pycolmap.Camera(model="PINHOLE", width=w, height=h,
+                             params=[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5])
+    camera.has_prior_focal_length = True
+    options = pycolmap.TwoViewGeometryOptions()
+    options.compute_relative_pose = True
+    options.ransac.max_error = max_error
+    matches = np.repeat(np.arange(len(p1))[:, None], 2, 1)
+    geometry = pycolmap.estimate_calibrated_two_view_geometry(camera, p1 + 0.5, camera, p2 + 0.5, matches, options)
+    inliers = np.zeros(len(p1), bool)
+    inliers[np.asarray(geometry.inlier_matches, int).reshape(-1, 2)[:, 0]] = True
+    config = pycolmap.TwoViewGeometryConfiguration(geometry.config).name
+    if config in ("UNDEFINED", "DEGENERATE") or inliers.sum() < MIN_MATCHES:
+        return _failed(len(p1), f"pycolmap: {config}")
+    rigid = geometry.cam2_from_cam1
+    T_c2_c1 = np.eye(4)
+    T_c2_c1[:3, :4] = rigid.matrix()
+    T = np.linalg.inv(T_c2_c1)
+    norm = np.linalg.norm(T[:3, 3])
+    T[:3, 3] /= max(norm, 1e-12)
+    return RelativePose(T, "homography" if "PLANAR" in config else "essential", inliers,
+                        rotation_only=config == "PANORAMIC")
+
+
+def _failed(count: int, reason: str) -> RelativePose:
+    return RelativePose(np.eye(4), "failed", np.zeros(count, bool), reason=reason)
+
+
+def estimate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, method: str = "auto", size: tuple[int, int] = (120, 160),
+             previous_t: np.ndarray | None = None, sigma: float = 1.0) -> RelativePose:
+    """Relative pose of camera 2 in camera 1 from matched pixels p1, p2 (N, 2).
+
+    Degenerate cases never raise: fewer than ``MIN_MATCHES`` matches gives model "failed"; a median
+    flow below ``STATIC_FLOW_PX`` gives "static" (identity); pure rotation is flagged ``rotation_only``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown relative pose method {method!r}; expected one of {', '.join(METHODS)}")
+    p1, p2 = np.asarray(p1, np.float64).reshape(-1, 2), np.asarray(p2, np.float64).reshape(-1, 2)
+    if len(p1) != len(p2):
+        raise ValueError(f"p1 and p2 must have the same length, got {len(p1)} and {len(p2)}")
+    if len(p1) < MIN_MATCHES:
+        return _failed(len(p1), f"{len(p1)} matches, at least {MIN_MATCHES} needed")
+    if np.median(np.linalg.norm(p2 - p1, axis=1)) < STATIC_FLOW_PX:
+        return RelativePose(np.eye(4), "static", np.ones(len(p1), bool), reason="no motion")
+    if method == "pycolmap":
+        return pycolmap_pose(p1, p2, K, size)
+    if method == "homography":
+        return homography_pose(p1, p2, K, previous_t=previous_t)
+    if method == "essential":
+        return essential_pose(p1, p2, K)
+    model, H, inliers_h = select_model(p1, p2, sigma)
+    if model == "essential":
+        return essential_pose(p1, p2, K)
+    pose = homography_pose(p1[inliers_h], p2[inliers_h], K, H, previous_t)
+    full = np.zeros(len(p1), bool)
+    full[np.nonzero(inliers_h)[0][pose.inliers]] = True
+    pose.inliers = full
+    return pose
+
+
+def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:
+    """ORB-SLAM's choice between a homography and a fundamental matrix: "homography" when
+    R_H = S_H / (S_H + S_F) > 0.45. Returns (model, H or None, H inlier mask (N,)).
+
+    Between frames with little parallax both models fit and R_H does not discriminate: call it on
+    the widest baseline at hand (the odometry uses its keyframe pairs)."""
+    H, _ = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
+    if H is None:
+        return "essential", None, np.zeros(len(p1), bool)
+    F, _ = cv2.findFundamentalMat(p1, p2, cv2.USAC_MAGSAC, 1.0, 0.999)
+    score_h, inliers_h = _score_homography(H, p1, p2, sigma)
+    score_f = _score_fundamental(F[:3], p1, p2, sigma)[0] if F is not None and F.shape[0] >= 3 else 0.0
+    ratio = score_h / max(score_h + score_f, 1e-12)
+    return ("homography" if ratio > 0.45 else "essential"), H, inliers_h

@@ -1,0 +1,131 @@
+"""Running the odometry end to end on a simulated scenario (evaluation code: it uses ``sim``)."""
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+from tqdm import tqdm
+
+from backend import drift
+from backend.odometry import FrameResult, InputFrame, Odometry, OdometryConfig
+from frontend.tracking import FRONTENDS, ClassicalTracker, MagicTracker, OracleTracker, Tracker, Truth
+from sim.scenario import Scenario, ScenarioConfig
+
+
+def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False) -> Tracker:
+    """A front-end by name (``frontend.tracking.FRONTENDS``), with the shipped networks for "magic"."""
+    if name == "magic":
+        from frontend.magicpoint import MagicPoint
+        from frontend.magicwarp import MagicWarp
+        return MagicTracker(MagicPoint.pretrained("S", top_k=150), MagicWarp.pretrained(), iterations=iterations,
+                            ransac=ransac)
+    if name == "classical":
+        return ClassicalTracker()
+    if name == "oracle":
+        return OracleTracker(seed=seed)
+    raise ValueError(f"unknown front-end {name!r}; expected one of {', '.join(FRONTENDS)}")
+
+
+def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
+    for f in scenario:
+        yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels))
+
+
+Sink = Callable[[InputFrame, FrameResult], None]
+
+
+def run_frames(frames: Iterable[InputFrame], odometry: Odometry, sink: Sink | None = None,
+               total: int | None = None, progress: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Process frames in order, handing each (frame, result) to ``sink`` as soon as it is done.
+
+    Returns (online estimates (N, 4, 4): each frame's pose as the graph had it when the frame was
+    done, the poses that are logged; ground truth (N, 4, 4) or None). ``odometry.poses()`` has the
+    final smoothed trajectory.
+    """
+    truth, online = [], []
+    for frame in tqdm(frames, total=total, unit="frame", disable=not progress, dynamic_ncols=True):
+        result = odometry.process(frame)
+        truth.append(frame.T_world_cam)
+        online.append(result.T_world_cam)
+        if sink is not None:
+            sink(frame, result)
+    if not online:
+        raise ValueError("no frames to process")
+    has_truth = all(T is not None for T in truth)
+    return np.stack(online), (np.stack(truth) if has_truth else None)
+
+
+def simulate(scenario_config: ScenarioConfig, frontend: str, odometry_config: OdometryConfig,
+             out: str | Path | None = None, metadata: dict | None = None, progress: bool = True,
+             **tracker_options) -> dict:
+    """Run one simulated trajectory end to end (logged to ``out`` if given).
+
+    Returns {"estimate", "truth", "drift", "scale", "odometry"}; the drift figures say which scale was used.
+    """
+    scenario = Scenario(scenario_config)
+    if odometry_config.scale == "plane" and odometry_config.plane_distance is None:
+        odometry_config = replace(odometry_config, plane_distance=scenario.plane_distance())
+    odometry = Odometry(make_tracker(frontend, scenario_config.seed, **tracker_options), odometry_config)
+    frames = simulated_frames(scenario)
+    if out is None:
+        estimate, truth = run_frames(frames, odometry, None, len(scenario), progress)
+    else:
+        meta = {"scenario": asdict(scenario_config), "odometry": asdict(odometry_config), "frontend": frontend,
+                "frontend_options": tracker_options, **(metadata or {})}
+        estimate, truth = run_logged(frames, odometry, out, meta, len(scenario), progress)
+    return {"estimate": estimate, "truth": truth, "drift": drift.summary(estimate, truth),
+            "smoothed_ate_se3": drift.ate_rmse(odometry.poses(), truth), "scale": odometry_config.scale,
+            "odometry": odometry}
+
+
+def replay(log: str | Path, frontend: str, odometry_config: OdometryConfig, out: str | Path,
+           metadata: dict | None = None, progress: bool = True, **tracker_options) -> dict:
+    """Feed a log's images (camera info, ground truth) through the pipeline again into a new log."""
+    if frontend == "oracle":
+        raise ValueError("the oracle front-end needs the simulator's landmarks, which logs do not hold")
+    odometry = Odometry(make_tracker(frontend, **tracker_options), odometry_config)
+    meta = {"replayed_from": str(log), "odometry": asdict(odometry_config), "frontend": frontend,
+            "frontend_options": tracker_options, **(metadata or {})}
+    estimate, truth = run_logged(logged_frames(log), odometry, out, meta, None, progress)
+    return {"estimate": estimate, "truth": truth, "scale": odometry_config.scale,
+            "drift": drift.summary(estimate, truth) if truth is not None else None}
+
+
+def to_log_frame(frame: InputFrame, result: FrameResult, previous_stamp_ns: int | None):
+    """The log record of one processed frame (the format lives in ``logs``; the content here)."""
+    from logs.frames import Correspondences, LogFrame
+
+    tracks = np.column_stack([result.tracks.points, result.tracks.scores, result.tracks.ids]) if len(result.tracks.ids) \
+        else np.zeros((0, 4))
+    correspondences = None
+    if result.relative is not None and previous_stamp_ns is not None:
+        correspondences = Correspondences(previous_stamp_ns, result.correspondences[:, 0], result.correspondences[:, 1],
+                                          result.relative.model, int(result.relative.inliers.sum()),
+                                          result.T_prev_cur)
+    return LogFrame(frame.stamp_ns, frame.image, frame.K, frame.T_world_cam, result.T_world_cam, result.covariance,
+                    tracks, correspondences)
+
+
+def run_logged(frames: Iterable[InputFrame], odometry: Odometry, out: str | Path, metadata: dict,
+               total: int | None = None, progress: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """``run_frames`` writing every frame to an MCAP log at ``out`` as it is processed. The log is
+    finished cleanly on Ctrl-C (and then the interruption propagates)."""
+    from logs.writer import LogWriter
+
+    previous: list[int] = []
+    with LogWriter(out, metadata) as log:
+        def sink(frame: InputFrame, result: FrameResult) -> None:
+            log.write(to_log_frame(frame, result, previous[-1] if previous else None))
+            previous.append(frame.stamp_ns)
+
+        return run_frames(frames, odometry, sink, total, progress)
+
+
+def logged_frames(path: str | Path) -> Iterable[InputFrame]:
+    """Frames of a log as odometry input (images, camera info, ground truth when logged)."""
+    from logs.reader import read_frames
+
+    for f in read_frames(path):
+        yield InputFrame(f.image, f.K, f.stamp_ns, f.T_groundtruth)

@@ -1,0 +1,158 @@
+"""Front-ends: turn each frame into tracked points with track ids, behind one interface.
+
+- ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images,
+  nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top).
+- ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
+  checked), replenished when tracks run low: what a practitioner would build.
+- ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
+  detection budget: the limit any front-end can reach with this back-end.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from frontend.magicpoint import MagicPoint
+from frontend.magicwarp import MagicWarp, match
+
+FRONTENDS = ("magic", "classical", "oracle")
+
+
+@dataclass
+class Tracks:
+    """One frame's tracked points: pixels (N, 2) float64, track ids (N,) int64, scores (N,)."""
+
+    points: np.ndarray
+    ids: np.ndarray
+    scores: np.ndarray
+
+    @staticmethod
+    def empty() -> "Tracks":
+        return Tracks(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0))
+
+
+@dataclass
+class Truth:
+    """Ground truth a simulator can hand to the oracle: visible landmark ids (N,) and pixels (N, 2)."""
+
+    ids: np.ndarray
+    pixels: np.ndarray
+
+
+class Tracker:
+    """Interface: ``track(image, truth=None) -> Tracks``; ids persist while a point is followed."""
+
+    def __init__(self):
+        self.previous = Tracks.empty()
+        self._next_id = 0
+
+    def _new_ids(self, count: int) -> np.ndarray:
+        ids = np.arange(self._next_id, self._next_id + count, dtype=np.int64)
+        self._next_id += count
+        return ids
+
+    def _link(self, points: np.ndarray, scores: np.ndarray, pairs: np.ndarray) -> Tracks:
+        """Tracks for ``points`` where ``pairs`` (K, 2) links previous indices to current ones."""
+        ids = np.full(len(points), -1, np.int64)
+        ids[pairs[:, 1]] = self.previous.ids[pairs[:, 0]]
+        fresh = ids < 0
+        ids[fresh] = self._new_ids(int(fresh.sum()))
+        self.previous = Tracks(np.asarray(points, np.float64), ids, np.asarray(scores, np.float64))
+        return self.previous
+
+    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+        raise NotImplementedError
+
+
+def _ransac_filter(pairs: np.ndarray, a: np.ndarray, b: np.ndarray, threshold: float = 1.0) -> np.ndarray:
+    """Keep the pairs consistent with one fundamental matrix (MAGSAC); all of them if too few."""
+    if len(pairs) < 8:
+        return pairs
+    _, mask = cv2.findFundamentalMat(a[pairs[:, 0]], b[pairs[:, 1]], cv2.USAC_MAGSAC, threshold, 0.999)
+    return pairs if mask is None else pairs[mask.ravel().astype(bool)]
+
+
+class MagicTracker(Tracker):
+    """MagicPoint + MagicWarp tracking. ``iterations`` applies MagicWarp iteratively; ``max_dist``
+    is the snapping radius in pixels; ``ransac`` adds a fundamental-matrix check."""
+
+    def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
+                 ransac: bool = False):
+        super().__init__()
+        self.detector, self.warp = detector, warp
+        self.max_dist, self.iterations, self.ransac = max_dist, iterations, ransac
+        self.last_homography = np.eye(3)
+
+    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+        detections = self.detector.detect(image)
+        points = detections[:, :2].astype(np.float64)
+        pairs = np.zeros((0, 2), np.int64)
+        if len(self.previous.points) and len(points):
+            self.last_homography = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
+            pairs = match(self.previous.points, points, self.last_homography, self.max_dist)
+            if self.ransac:
+                pairs = _ransac_filter(pairs, self.previous.points, points)
+        return self._link(points, detections[:, 2], pairs)
+
+
+class ClassicalTracker(Tracker):
+    """Shi-Tomasi + pyramidal Lucas-Kanade with a forward-backward check (``fb_max`` pixels)."""
+
+    def __init__(self, budget: int = 150, min_distance: int = 6, fb_max: float = 1.0, quality: float = 0.01):
+        super().__init__()
+        self.budget, self.min_distance, self.fb_max, self.quality = budget, min_distance, fb_max, quality
+        self.previous_image: np.ndarray | None = None
+        self.lk = dict(winSize=(15, 15), maxLevel=2,
+                       criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+
+    def _detect(self, image: np.ndarray, existing: np.ndarray, count: int) -> np.ndarray:
+        mask = np.full(image.shape, 255, np.uint8)
+        for x, y in existing:
+            cv2.circle(mask, (int(round(x)), int(round(y))), self.min_distance, 0, -1)
+        corners = cv2.goodFeaturesToTrack(image, count, self.quality, self.min_distance, mask=mask)
+        return np.zeros((0, 2)) if corners is None else corners.reshape(-1, 2).astype(np.float64)
+
+    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+        pairs = np.zeros((0, 2), np.int64)
+        kept = np.zeros((0, 2))
+        if self.previous_image is not None and len(self.previous.points):
+            p0 = self.previous.points.astype(np.float32).reshape(-1, 1, 2)
+            p1, status, _ = cv2.calcOpticalFlowPyrLK(self.previous_image, image, p0, None, **self.lk)
+            back, status_back, _ = cv2.calcOpticalFlowPyrLK(image, self.previous_image, p1, None, **self.lk)
+            good = (status.ravel() == 1) & (status_back.ravel() == 1)
+            good &= np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < self.fb_max
+            h, w = image.shape
+            p1 = p1.reshape(-1, 2)
+            good &= (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+            kept = p1[good].astype(np.float64)
+            pairs = np.stack([np.nonzero(good)[0], np.arange(good.sum())], 1)
+        fresh = self._detect(image, kept, self.budget - len(kept)) if len(kept) < self.budget * 0.7 else np.zeros((0, 2))
+        self.previous_image = image
+        points = np.vstack([kept, fresh])
+        return self._link(points, np.ones(len(points)), pairs)
+
+
+@dataclass
+class OracleTracker(Tracker):
+    """True landmark projections with Gaussian pixel noise ``noise_px`` and at most ``budget``
+    points, keeping existing tracks first (ids are the landmark ids)."""
+
+    budget: int = 150
+    noise_px: float = 0.5
+    seed: int = 0
+    rng: np.random.Generator = field(init=False)
+
+    def __post_init__(self):
+        super().__init__()
+        self.rng = np.random.default_rng(self.seed)
+
+    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+        if truth is None:
+            raise ValueError("the oracle front-end needs ground truth (simulated runs only)")
+        tracked = np.isin(truth.ids, self.previous.ids)
+        order = np.concatenate([np.nonzero(tracked)[0], self.rng.permutation(np.nonzero(~tracked)[0])])[: self.budget]
+        points = truth.pixels[order] + self.rng.normal(0, self.noise_px, (len(order), 2))
+        self.previous = Tracks(points, truth.ids[order].astype(np.int64), np.ones(len(order)))
+        return self.previous

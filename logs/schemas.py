@@ -1,0 +1,94 @@
+"""ROS 2 message definitions (``ros2msg`` text, dependencies appended as ROS 2 tools do) and topics.
+
+Standard messages are used wherever one fits, so Foxglove, evo and the ROS 2 tools read the logs;
+tracks and correspondences, which have no standard message, use two small ``deepslam_msgs`` types.
+"""
+from __future__ import annotations
+
+_SEPARATOR = "=" * 80
+
+_DEFINITIONS = {
+    "builtin_interfaces/Time": "int32 sec\nuint32 nanosec",
+    "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id",
+    "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z",
+    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z",
+    "geometry_msgs/Quaternion": "float64 x\nfloat64 y\nfloat64 z\nfloat64 w",
+    "geometry_msgs/Pose": "Point position\nQuaternion orientation",
+    "geometry_msgs/Transform": "Vector3 translation\nQuaternion rotation",
+    "geometry_msgs/PoseStamped": "std_msgs/Header header\nPose pose",
+    "geometry_msgs/PoseWithCovariance": "Pose pose\nfloat64[36] covariance",
+    "geometry_msgs/PoseWithCovarianceStamped": "std_msgs/Header header\nPoseWithCovariance pose",
+    "geometry_msgs/TransformStamped": "std_msgs/Header header\nstring child_frame_id\nTransform transform",
+    "tf2_msgs/TFMessage": "geometry_msgs/TransformStamped[] transforms",
+    "sensor_msgs/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data",
+    "sensor_msgs/RegionOfInterest": "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify",
+    "sensor_msgs/CameraInfo": ("std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n"
+                               "float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n"
+                               "uint32 binning_y\nRegionOfInterest roi"),
+    "deepslam_msgs/Tracks": ("# tracked image points of one frame (pixels, top-left pixel centre at 0,0)\n"
+                             "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"),
+    "deepslam_msgs/Correspondences": (
+        "# matches between the previous frame's tracks and this frame's, and the relative pose from them\n"
+        "std_msgs/Header header\nbuiltin_interfaces/Time previous_stamp\nuint32[] previous_index\n"
+        "uint32[] current_index\nstring model\nuint32 inliers\nfloat64[16] t_prev_cur"),
+}
+
+_DEPENDENCIES = {
+    "std_msgs/Header": ["builtin_interfaces/Time"],
+    "geometry_msgs/Pose": ["geometry_msgs/Point", "geometry_msgs/Quaternion"],
+    "geometry_msgs/Transform": ["geometry_msgs/Vector3", "geometry_msgs/Quaternion"],
+    "geometry_msgs/PoseStamped": ["std_msgs/Header", "geometry_msgs/Pose"],
+    "geometry_msgs/PoseWithCovariance": ["geometry_msgs/Pose"],
+    "geometry_msgs/PoseWithCovarianceStamped": ["std_msgs/Header", "geometry_msgs/PoseWithCovariance"],
+    "geometry_msgs/TransformStamped": ["std_msgs/Header", "geometry_msgs/Transform"],
+    "tf2_msgs/TFMessage": ["geometry_msgs/TransformStamped"],
+    "sensor_msgs/CompressedImage": ["std_msgs/Header"],
+    "sensor_msgs/CameraInfo": ["std_msgs/Header", "sensor_msgs/RegionOfInterest"],
+    "deepslam_msgs/Tracks": ["std_msgs/Header"],
+    "deepslam_msgs/Correspondences": ["std_msgs/Header", "builtin_interfaces/Time"],
+}
+
+
+def _closure(name: str) -> list[str]:
+    seen: list[str] = []
+
+    def visit(n: str) -> None:
+        for dep in _DEPENDENCIES.get(n, []):
+            if dep not in seen:
+                seen.append(dep)
+                visit(dep)
+
+    visit(name)
+    return seen
+
+
+def msgdef(name: str) -> str:
+    """The full ``ros2msg`` text of a message type ("pkg/Type"), its dependencies appended."""
+    parts = [_DEFINITIONS[name]] + [f"{_SEPARATOR}\nMSG: {dep}\n{_DEFINITIONS[dep]}" for dep in _closure(name)]
+    return "\n".join(parts)
+
+
+def ros2_name(name: str) -> str:
+    """"pkg/Type" -> "pkg/msg/Type", the schema name ROS 2 tools expect."""
+    package, type_name = name.split("/")
+    return f"{package}/msg/{type_name}"
+
+
+TOPICS = {
+    "/camera/image": "sensor_msgs/CompressedImage",
+    "/camera/camera_info": "sensor_msgs/CameraInfo",
+    "/groundtruth/pose": "geometry_msgs/PoseStamped",
+    "/estimate/pose": "geometry_msgs/PoseStamped",
+    "/estimate/pose_covariance": "geometry_msgs/PoseWithCovarianceStamped",
+    "/tf": "tf2_msgs/TFMessage",
+    "/frontend/tracks": "deepslam_msgs/Tracks",
+    "/frontend/correspondences": "deepslam_msgs/Correspondences",
+}
+"""Every topic a run writes, with its message type. Ground truth is absent in logs of real data."""
+
+FRAME_TOPICS = ("/camera/image", "/camera/camera_info")
+"""The topics that make a frame replayable."""
+
+WORLD_FRAME = "world"
+CAMERA_FRAME = "camera"          # the optical frame (x right, y down, z ahead)
+GROUNDTRUTH_FRAME = "camera_groundtruth"

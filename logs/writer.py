@@ -1,0 +1,118 @@
+"""Writing runs to MCAP as ROS 2 messages (CDR), chunk by chunk as the run goes.
+
+The file is flushed after every frame, so a run that is killed leaves a file readable up to its last
+complete chunk; ``close`` (also on Ctrl-C, through the context manager) writes the summary.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+from mcap.writer import CompressionType
+from mcap_ros2.writer import Writer as Ros2Writer
+
+from logs.frames import LogFrame, quaternion_from_matrix
+from logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
+
+
+def _time(stamp_ns: int) -> dict:
+    return {"sec": int(stamp_ns // 1_000_000_000), "nanosec": int(stamp_ns % 1_000_000_000)}
+
+
+def _header(stamp_ns: int, frame_id: str) -> dict:
+    return {"stamp": _time(stamp_ns), "frame_id": frame_id}
+
+
+def _pose(T: np.ndarray) -> dict:
+    x, y, z, w = quaternion_from_matrix(T[:3, :3])
+    px, py, pz = (float(v) for v in T[:3, 3])
+    return {"position": {"x": px, "y": py, "z": pz}, "orientation": {"x": x, "y": y, "z": z, "w": w}}
+
+
+def _transform(T: np.ndarray) -> dict:
+    pose = _pose(T)
+    return {"translation": pose["position"], "rotation": pose["orientation"]}
+
+
+def ros_covariance(covariance: np.ndarray, T: np.ndarray) -> list[float]:
+    """gtsam's body-frame (rotation, translation) covariance as ROS's (x, y, z, rx, ry, rz) in the
+    world frame's axes (both blocks rotated by the pose's rotation)."""
+    order = [3, 4, 5, 0, 1, 2]
+    rotate = np.kron(np.eye(2), T[:3, :3])
+    return (rotate @ np.asarray(covariance)[np.ix_(order, order)] @ rotate.T).ravel().tolist()
+
+
+class LogWriter:
+    """``with LogWriter(path, metadata) as log: log.write(frame)`` for each ``LogFrame``."""
+
+    def __init__(self, path: str | Path, metadata: dict, chunk_size: int = 256 * 1024):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")
+        self._writer = Ros2Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._schemas = {topic: self._writer.register_msgdef(ros2_name(kind), msgdef(kind)) for topic, kind in TOPICS.items()}
+        self._writer.add_metadata("deepslam", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
+        self.frames = 0
+
+    def _put(self, topic: str, message: dict, stamp_ns: int) -> None:
+        self._writer.write_message(topic, self._schemas[topic], message, log_time=stamp_ns, publish_time=stamp_ns,
+                                   sequence=self.frames)
+
+    def write(self, frame: LogFrame) -> None:
+        """Write every topic of one frame (those whose data the frame has)."""
+        t = frame.stamp_ns
+        h, w = frame.image.shape
+        ok, png = cv2.imencode(".png", frame.image)
+        if not ok:
+            raise ValueError("could not encode the frame as PNG")
+        self._put("/camera/image", {"header": _header(t, CAMERA_FRAME), "format": "png", "data": png.tobytes()}, t)
+        K = np.asarray(frame.K, np.float64)
+        P = np.hstack([K, np.zeros((3, 1))])
+        self._put("/camera/camera_info", {
+            "header": _header(t, CAMERA_FRAME), "height": h, "width": w, "distortion_model": "plumb_bob",
+            "d": [0.0] * 5, "k": K.ravel().tolist(), "r": np.eye(3).ravel().tolist(), "p": P.ravel().tolist(),
+            "binning_x": 0, "binning_y": 0,
+            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}, t)
+        transforms = []
+        if frame.T_groundtruth is not None:
+            self._put("/groundtruth/pose", {"header": _header(t, WORLD_FRAME), "pose": _pose(frame.T_groundtruth)}, t)
+            transforms.append({"header": _header(t, WORLD_FRAME), "child_frame_id": GROUNDTRUTH_FRAME,
+                               "transform": _transform(frame.T_groundtruth)})
+        if frame.T_estimate is not None:
+            self._put("/estimate/pose", {"header": _header(t, WORLD_FRAME), "pose": _pose(frame.T_estimate)}, t)
+            transforms.append({"header": _header(t, WORLD_FRAME), "child_frame_id": CAMERA_FRAME,
+                               "transform": _transform(frame.T_estimate)})
+            if frame.covariance is not None:
+                self._put("/estimate/pose_covariance", {"header": _header(t, WORLD_FRAME), "pose": {
+                    "pose": _pose(frame.T_estimate), "covariance": ros_covariance(frame.covariance, frame.T_estimate)}}, t)
+        if transforms:
+            self._put("/tf", {"transforms": transforms}, t)
+        if frame.tracks is not None:
+            tracks = np.asarray(frame.tracks, np.float64).reshape(-1, 4)
+            self._put("/frontend/tracks", {"header": _header(t, CAMERA_FRAME), "x": tracks[:, 0].astype(np.float32).tolist(),
+                                           "y": tracks[:, 1].astype(np.float32).tolist(),
+                                           "score": tracks[:, 2].astype(np.float32).tolist(),
+                                           "id": tracks[:, 3].astype(np.int64).tolist()}, t)
+        c = frame.correspondences
+        if c is not None:
+            self._put("/frontend/correspondences", {
+                "header": _header(t, CAMERA_FRAME), "previous_stamp": _time(c.previous_stamp_ns),
+                "previous_index": np.asarray(c.previous_index, np.uint32).tolist(),
+                "current_index": np.asarray(c.current_index, np.uint32).tolist(),
+                "model": c.model, "inliers": int(c.inliers), "t_prev_cur": np.asarray(c.T_prev_cur, np.float64).ravel().tolist()}, t)
+        self.frames += 1
+        self._file.flush()
+
+    def close(self) -> None:
+        """Finish the file (summary and footer); safe to call twice."""
+        if not self._file.closed:
+            self._writer.finish()
+            self._file.close()
+
+    def __enter__(self) -> "LogWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

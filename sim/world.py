@@ -1,0 +1,163 @@
+"""Piecewise-planar textured worlds rendered with OpenCV, with per-pixel depth (a z-buffer).
+
+A world is a list of textured rectangles in 3D (world frame: z up). Each is drawn by mapping every
+pixel's ray onto its plane and sampling the texture there, so perspective and occlusion are exact.
+Landmarks are points on the surfaces; a landmark is visible when it projects inside the image and
+the z-buffer there holds its depth.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import skimage.data
+
+from sim import noise as noise_module
+from sim.camera import invert, project, transform
+from sim.shapes import CATEGORIES, render
+
+WORLDS = ("plane", "room")
+_PHOTOS = ("camera", "brick", "grass", "gravel", "coins", "text", "page", "clock", "astronaut", "coffee",
+           "chelsea", "rocket")
+
+
+@dataclass
+class Surface:
+    """A textured rectangle: ``origin`` + u * ``axis_u`` + v * ``axis_v`` for u, v in [0, 1]."""
+
+    origin: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    texture: np.ndarray  # uint8 (h, w), texel (0, 0) at u = v = 0
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.cross(self.axis_u, self.axis_v)
+        return n / np.linalg.norm(n)
+
+
+@dataclass
+class Frame:
+    """A rendered view: image uint8 (H, W), depth float32 (H, W) (inf where nothing), and the visible
+    landmarks' ids (N,) and pixel projections (N, 2)."""
+
+    image: np.ndarray
+    depth: np.ndarray
+    landmark_ids: np.ndarray
+    landmark_pixels: np.ndarray
+
+
+@dataclass
+class World:
+    """Surfaces, landmarks (M, 3) on them, and the point trajectories orbit (``target``)."""
+
+    name: str
+    surfaces: list[Surface]
+    landmarks: np.ndarray
+    target: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    dominant_plane: tuple[np.ndarray, float] | None = None  # (unit normal n, offset c): n . X = c
+
+    def render(self, T_world_cam: np.ndarray, K: np.ndarray, size: tuple[int, int],
+               rng: np.random.Generator | None = None, noise_s: float = 0.0, light: float = 1.0) -> Frame:
+        """Render the view of a camera at ``T_world_cam`` with intrinsics K; ``light`` scales
+        brightness and ``noise_s`` adds the photometric noise of ``sim.noise`` at that magnitude."""
+        h, w = size
+        T_cam_world = invert(T_world_cam)
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+        rays = np.stack([xs, ys, np.ones_like(xs)], -1) @ np.linalg.inv(K).T  # z = 1
+        rays_world = rays @ T_world_cam[:3, :3].T
+        centre = T_world_cam[:3, 3]
+        image = np.zeros((h, w), np.float32)
+        depth = np.full((h, w), np.inf, np.float32)
+        for surface in self.surfaces:
+            n = surface.normal
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = ((surface.origin - centre) @ n) / (rays_world @ n)
+            hit = centre + rays_world * t[..., None] - surface.origin
+            u = hit @ surface.axis_u / (surface.axis_u @ surface.axis_u)
+            v = hit @ surface.axis_v / (surface.axis_v @ surface.axis_v)
+            mask = (t > 1e-3) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1) & (t < depth)
+            th, tw = surface.texture.shape
+            sampled = cv2.remap(surface.texture, (u * (tw - 1)).astype(np.float32), (v * (th - 1)).astype(np.float32),
+                                cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            image[mask], depth[mask] = sampled[mask], t[mask]
+        image = np.clip(image * light, 0, 255).astype(np.uint8)
+        if noise_s > 0:
+            image = noise_module.apply(image, rng if rng is not None else np.random.default_rng(0), noise_s)
+        ids, pixels = self.visible_landmarks(T_cam_world, K, depth)
+        return Frame(image, depth, ids, pixels)
+
+    def visible_landmarks(self, T_cam_world: np.ndarray, K: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ids and pixels of landmarks inside the image and not occluded (z-buffer test)."""
+        h, w = depth.shape
+        pixels, z = project(transform(T_cam_world, self.landmarks), K)
+        ok = (z > 1e-3) & np.all(np.isfinite(pixels), 1)
+        ok &= (pixels[:, 0] >= 0) & (pixels[:, 0] <= w - 1) & (pixels[:, 1] >= 0) & (pixels[:, 1] <= h - 1)
+        ids = np.nonzero(ok)[0]
+        cols, rows = np.rint(pixels[ids]).astype(int).T
+        unoccluded = z[ids] <= depth[rows, cols] * 1.01 + 1e-3
+        return ids[unoccluded], pixels[ids[unoccluded]]
+
+
+def _texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
+    """A texture: a real photograph shipped with scikit-image (2/3 of the time) or a shapes render."""
+    if rng.random() < 2 / 3:
+        photo = getattr(skimage.data, str(rng.choice(_PHOTOS)))()
+        if photo.ndim == 3:
+            photo = cv2.cvtColor(photo[..., :3], cv2.COLOR_RGB2GRAY)
+        return cv2.resize(photo, (size, size), interpolation=cv2.INTER_AREA)
+    image, _ = render(str(rng.choice(CATEGORIES[:8])), rng, (size // 2, size // 2))
+    return cv2.resize(image, (size, size), interpolation=cv2.INTER_LINEAR)
+
+
+def _rectangle(centre, axis_u, axis_v, rng) -> Surface:
+    centre, axis_u, axis_v = (np.asarray(a, np.float64) for a in (centre, axis_u, axis_v))
+    return Surface(centre - axis_u / 2 - axis_v / 2, axis_u, axis_v, _texture(rng))
+
+
+def _box(centre, size, rng) -> list[Surface]:
+    """Five faces (no bottom) of an axis-aligned box standing on its base."""
+    cx, cy, cz = centre
+    sx, sy, sz = size
+    return [
+        _rectangle((cx, cy - sy / 2, cz), (sx, 0, 0), (0, 0, -sz), rng),
+        _rectangle((cx, cy + sy / 2, cz), (-sx, 0, 0), (0, 0, -sz), rng),
+        _rectangle((cx - sx / 2, cy, cz), (0, -sy, 0), (0, 0, -sz), rng),
+        _rectangle((cx + sx / 2, cy, cz), (0, sy, 0), (0, 0, -sz), rng),
+        _rectangle((cx, cy, cz + sz / 2), (sx, 0, 0), (0, sy, 0), rng),
+    ]
+
+
+def _landmarks(surfaces: list[Surface], rng: np.random.Generator, density: float) -> np.ndarray:
+    """Random points on the surfaces, ``density`` per square unit."""
+    points = []
+    for s in surfaces:
+        area = np.linalg.norm(np.cross(s.axis_u, s.axis_v))
+        uv = rng.random((max(1, int(area * density)), 2))
+        points.append(s.origin + uv[:, :1] * s.axis_u + uv[:, 1:] * s.axis_v)
+    return np.vstack(points)
+
+
+def make(name: str, seed: int = 0, landmark_density: float = 150.0) -> World:
+    """A world by name: "plane" (one textured wall at y = 0 facing -y: the homography case) or
+    "room" (back wall, side walls, floor and boxes at different depths: the non-planar case).
+    Cameras of ``sim.trajectories`` look at ``target`` from about y = -2."""
+    if name not in WORLDS:
+        raise ValueError(f"unknown world {name!r}; expected one of {', '.join(WORLDS)}")
+    rng = np.random.default_rng(seed)
+    if name == "plane":
+        surfaces = [_rectangle((0, 0, 0), (6, 0, 0), (0, 0, -4.5), rng)]
+        return World(name, surfaces, _landmarks(surfaces, rng, landmark_density), np.zeros(3),
+                     (np.array([0.0, 1.0, 0.0]), 0.0))
+    surfaces = [
+        _rectangle((0, 1.5, 0.3), (6, 0, 0), (0, 0, -3.0), rng),          # back wall
+        _rectangle((-3, -0.5, 0.3), (0, -4, 0), (0, 0, -3.0), rng),       # left wall
+        _rectangle((3, -0.5, 0.3), (0, 4, 0), (0, 0, -3.0), rng),         # right wall
+        _rectangle((0, -0.5, -1.2), (6, 0, 0), (0, 4, 0), rng),           # floor
+    ]
+    for _ in range(3):
+        size = rng.uniform(0.4, 0.9, 3)
+        surfaces += _box((rng.uniform(-1.5, 1.5), rng.uniform(-0.2, 1.0), -1.2 + size[2] / 2), size, rng)
+    return World(name, surfaces, _landmarks(surfaces, rng, landmark_density), np.array([0.0, 0.5, -0.3]),
+                 (np.array([0.0, 1.0, 0.0]), 1.5))

@@ -1,0 +1,123 @@
+import numpy as np
+import pytest
+
+from backend import drift, relpose
+from backend.graph import PoseGraph
+from backend.odometry import Odometry, OdometryConfig
+from backend.run import run_frames, simulated_frames
+from frontend.tracking import OracleTracker
+from sim.camera import intrinsics, invert, pose, project, transform
+from sim.scenario import Scenario, ScenarioConfig
+
+K = intrinsics((120, 160))
+T_TRUE = pose(np.array([0.02, -0.04, 0.03]), np.array([0.3, 0.05, 0.1]))  # camera 2 in camera 1
+
+
+def _views(rng, planar: bool, T_c1_c2=T_TRUE, n=150, noise=0.2):
+    depth = np.full(n, 4.0) if planar else rng.uniform(3, 7, n)
+    X = np.c_[rng.uniform(-2, 2, (n, 2)), depth]
+    p1, _ = project(X, K)
+    p2, _ = project(transform(invert(T_c1_c2), X), K)
+    return p1 + rng.normal(0, noise, p1.shape), p2 + rng.normal(0, noise, p2.shape)
+
+
+def _errors(T, T_true):
+    R = T[:3, :3].T @ T_true[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+    t, t_true = T[:3, 3] / np.linalg.norm(T[:3, 3]), T_true[:3, 3] / np.linalg.norm(T_true[:3, 3])
+    return angle, np.degrees(np.arccos(np.clip(t @ t_true, -1, 1)))
+
+
+@pytest.mark.parametrize("method, planar", [("homography", True), ("essential", False), ("auto", True),
+                                            ("pycolmap", True), ("pycolmap", False)])
+def test_relative_pose_recovers_known_motion(rng, method, planar):
+    p1, p2 = _views(rng, planar)
+    result = relpose.estimate(p1, p2, K, method)
+    assert result.ok
+    rotation_error, direction_error = _errors(result.T_c1_c2, T_TRUE)
+    assert rotation_error < 0.5 and direction_error < 5
+
+
+def test_homography_path_gives_t_over_d_and_the_plane(rng):
+    p1, p2 = _views(rng, True, noise=0.0)
+    result = relpose.estimate(p1, p2, K, "homography")
+    assert result.t_over_d == pytest.approx(np.linalg.norm(T_TRUE[:3, 3]) / 4.0, rel=1e-3)
+    np.testing.assert_allclose(result.plane_normal, [0, 0, 1], atol=1e-3)
+
+
+def test_pycolmap_agrees_with_opencv(rng):
+    p1, p2 = _views(rng, False)
+    ours, theirs = relpose.estimate(p1, p2, K, "essential"), relpose.estimate(p1, p2, K, "pycolmap")
+    assert _errors(ours.T_c1_c2, theirs.T_c1_c2)[0] < 0.5
+
+
+def test_degenerate_cases_do_not_crash(rng):
+    p1, p2 = _views(rng, False)
+    assert relpose.estimate(p1[:5], p2[:5], K).model == "failed"
+    assert relpose.estimate(p1, p1 + 0.01, K).model == "static"
+    rotation_only = pose(np.array([0.0, 0.05, 0.0]), np.zeros(3))
+    q1, q2 = _views(rng, True, rotation_only, noise=0.0)
+    result = relpose.estimate(q1, q2, K, "homography")
+    assert result.rotation_only and _errors(result.T_c1_c2, rotation_only)[0] < 0.1 if result.T_c1_c2[:3, 3].any() else True
+    with pytest.raises(ValueError, match="method"):
+        relpose.estimate(p1, p2, K, "magic")
+    with pytest.raises(ValueError, match="same length"):
+        relpose.estimate(p1, p2[:-1], K)
+
+
+def test_isam2_agrees_with_batch_levenberg_marquardt(rng):
+    poses = [np.eye(4)]
+    for _ in range(10):
+        poses.append(poses[-1] @ pose(rng.normal(0, 0.05, 3), rng.normal(0, 0.2, 3)))
+    graph = PoseGraph(poses[0])
+    graph.update()
+    sigmas = np.array([0.01] * 3 + [0.05] * 3)
+    for k in range(1, len(poses)):
+        measured = invert(poses[k - 1]) @ poses[k] @ pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3))
+        graph.add_pose(k, graph.pose(k - 1) @ measured)
+        graph.add_between(k - 1, k, measured, sigmas)
+        if k >= 3:
+            graph.add_between(k - 3, k, invert(poses[k - 3]) @ poses[k], sigmas)
+        graph.update()
+    graph.refine(5)
+    batch = graph.batch_solve()
+    np.testing.assert_allclose(graph.poses(), batch, atol=3e-3)  # metres / rotation entries, on a ~2 m path
+    assert np.abs(graph.poses()[:, :3, 3] - batch[:, :3, 3]).mean() < 1e-3
+    covariance = graph.covariance(len(poses) - 1)
+    assert covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > 0)
+
+
+def test_drift_metrics(rng):
+    truth = np.stack([pose(rng.normal(0, 0.1, 3), [i * 0.1, np.sin(i), 0.2 * i]) for i in range(20)])
+    assert drift.ate_rmse(truth, truth) == pytest.approx(0, abs=1e-12)
+    moved = pose([0.1, 0.2, 0.3], [1, 2, 3]) @ truth
+    scaled = moved.copy()
+    scaled[:, :3, 3] *= 2.5
+    assert drift.ate_rmse(moved, truth) == pytest.approx(0, abs=1e-9)
+    assert drift.ate_rmse(scaled, truth, with_scale=True) == pytest.approx(0, abs=1e-9)
+    assert drift.ate_rmse(scaled, truth) > 0.1
+    rpe_t, rpe_r = drift.rpe(moved, truth)
+    np.testing.assert_allclose(rpe_t, 0, atol=1e-9)
+    shifted = truth.copy()
+    shifted[-1, :3, 3] += [0, 0, 1.0]
+    summary = drift.summary(shifted, truth)
+    assert summary["final_drift_pct"] == pytest.approx(100 / drift.path_length(truth))
+    with pytest.raises(ValueError):
+        drift.summary(truth[:1], truth[:1])
+
+
+def test_planar_world_with_oracle_recovers_the_trajectory():
+    scenario = Scenario(ScenarioConfig(world="plane", frames=30))
+    odometry = Odometry(OracleTracker(noise_px=0.0), OdometryConfig(scale="gt"))
+    estimate, truth = run_frames(simulated_frames(scenario), odometry, progress=False)
+    assert drift.ate_rmse(estimate, truth) < 1e-3
+    assert odometry.model == "homography"
+
+
+def test_plane_scale_needs_no_ground_truth_steps():
+    scenario = Scenario(ScenarioConfig(world="plane", frames=20))
+    config = OdometryConfig(scale="plane", plane_distance=scenario.plane_distance())
+    estimate, truth = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=0.0), config), progress=False)
+    assert drift.ate_rmse(estimate, truth) < 1e-3
+    with pytest.raises(ValueError, match="distance"):
+        Odometry(OracleTracker(), OdometryConfig(scale="plane"))

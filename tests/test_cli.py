@@ -1,0 +1,51 @@
+import json
+
+import numpy as np
+import pytest
+
+from deepslam.cli import build_parser, main
+
+
+def test_every_command_explains_its_options(capsys):
+    for argv in (["--help"], ["run", "--help"], ["replay", "--help"], ["drift", "--help"], ["eval", "detector", "--help"],
+                 ["eval", "warp", "--help"], ["bench", "detector", "--help"], ["bench", "warp", "--help"],
+                 ["bench", "pipeline", "--help"], ["train", "magicpoint", "--help"], ["train", "magicwarp", "--help"],
+                 ["eval", "realimages", "--help"]):
+        with pytest.raises(SystemExit) as exit_info:
+            main(argv)
+        assert exit_info.value.code == 0
+        assert "usage: deepslam" in capsys.readouterr().out
+
+
+def test_contract_flags_of_run():
+    args = build_parser().parse_args(["run", "--frontend", "classical", "--frames", "7", "--seed", "3", "--out", "x.mcap"])
+    assert (args.frontend, args.frames, args.seed, str(args.out)) == ("classical", 7, 3, "x.mcap")
+
+
+def test_run_and_drift_end_to_end(tmp_path, capsys):
+    log = tmp_path / "run.mcap"
+    assert main(["run", "--frontend", "classical", "--frames", "12", "--out", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "ate_se3" in out and "scale: gt" in out and log.exists()
+    assert main(["drift", str(log), "--out", str(tmp_path / "drift"), "--tum"]) == 0
+    assert (tmp_path / "drift" / "drift.png").exists()
+
+
+def test_bad_input_gets_a_clear_error(tmp_path, capsys):
+    garbage = tmp_path / "g.mcap"
+    garbage.write_bytes(b"hello")
+    assert main(["drift", str(garbage)]) == 2
+    assert "not an MCAP file" in capsys.readouterr().err
+    assert main(["run", "--frames", "1", "--out", str(tmp_path / "r.mcap")]) == 2
+    assert "at least 2 frames" in capsys.readouterr().err
+    assert main(["run", "--size", "100", "160", "--out", str(tmp_path / "r.mcap")]) == 2
+    assert "divisible by 8" in capsys.readouterr().err
+
+
+def test_eval_detector_writes_table_json_and_plots(tmp_path, capsys):
+    assert main(["eval", "detector", "--per-category", "2", "--sweep-per-category", "1", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "Harris" in out and "MagicPointS" in out
+    result = json.loads((tmp_path / "detector.json").read_text())
+    assert set(result["detectors"]) >= {"FAST", "Harris", "Shi", "MagicPointS"}
+    assert len(list(tmp_path.glob("*.png"))) == 3

@@ -1,0 +1,146 @@
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from backend import analysis, drift
+from backend.odometry import OdometryConfig
+from backend.run import replay, simulate
+from logs.frames import pose_matrix, quaternion_from_matrix
+from logs.reader import LogError, read_frames, read_metadata
+from logs.schemas import TOPICS, ros2_name
+from sim.scenario import ScenarioConfig
+
+
+def _as_logged(T):
+    return pose_matrix(T[:3, 3], quaternion_from_matrix(T[:3, :3]))
+
+
+@pytest.fixture(scope="module")
+def oracle_log(tmp_path_factory):
+    path = tmp_path_factory.mktemp("logs") / "oracle.mcap"
+    result = simulate(ScenarioConfig(frames=25, seed=3), "oracle", OdometryConfig(), path, {"version": "test"},
+                      progress=False)
+    return path, result
+
+
+def test_run_reads_back_bit_for_bit(oracle_log):
+    path, result = oracle_log
+    frames = list(read_frames(path))
+    assert len(frames) == 25
+    for frame, estimate, truth in zip(frames, result["estimate"], result["truth"]):
+        assert np.array_equal(frame.T_estimate, _as_logged(estimate))
+        assert np.array_equal(frame.T_groundtruth, _as_logged(truth))
+        assert frame.image.dtype == np.uint8 and frame.image.shape == (120, 160)
+        assert frame.tracks.shape[1] == 4
+    assert frames[0].correspondences is None and frames[1].correspondences.model in ("homography", "essential")
+    meta = read_metadata(path)
+    assert meta["frontend"] == "oracle" and meta["scenario"]["seed"] == 3 and meta["version"] == "test"
+
+
+def test_mcap_library_lists_every_channel_with_its_schema(oracle_log):
+    path, _ = oracle_log
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    schemas = {s.id: s for s in summary.schemas.values()}
+    channels = {c.topic: schemas[c.schema_id] for c in summary.channels.values()}
+    assert set(channels) == set(TOPICS)
+    for topic, schema in channels.items():
+        assert schema.name == ros2_name(TOPICS[topic]) and schema.encoding == "ros2msg"
+        assert summary.channels and all(c.message_encoding == "cdr" for c in summary.channels.values())
+
+
+def test_evo_agrees_with_deepslam_drift(oracle_log, tmp_path):
+    path, _ = oracle_log
+    _, truth, estimate = analysis.load_trajectories(path)
+    ours = drift.ate_rmse(estimate, truth)
+    zip_path = tmp_path / "ape.zip"
+    subprocess.run(["evo_ape", "mcap", str(path), "/groundtruth/pose", "/estimate/pose", "-a",
+                    "--save_results", str(zip_path), "--no_warnings"], check=True, capture_output=True, timeout=300)
+    import zipfile
+    stats = json.loads(zipfile.ZipFile(zip_path).read("stats.json"))
+    assert stats["rmse"] == pytest.approx(ours, rel=1e-6)
+
+
+def test_drift_plots_and_tum(oracle_log, tmp_path):
+    path, _ = oracle_log
+    results = analysis.analyse([path, path])
+    assert len(analysis.table_lines(results)) == 2
+    assert analysis.save_plots([path], tmp_path)[0].stat().st_size > 10_000
+    gt, est = analysis.export_tum(path, tmp_path)
+    assert len(gt.read_text().splitlines()) == 25 and len(est.read_text().split("\n")[0].split()) == 8
+
+
+def test_garbage_and_foreign_files_get_clear_errors(tmp_path):
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(os.urandom(5000))
+    with pytest.raises(LogError, match="not an MCAP file"):
+        list(read_frames(garbage))
+    with pytest.raises(LogError, match="no such file"):
+        list(read_frames(tmp_path / "missing.mcap"))
+    from mcap.writer import Writer
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("x", "jsonschema", b"{}")
+        channel = writer.register_channel("/other", "json", schema)
+        writer.add_message(channel, 1, b"{}", 1)
+        writer.finish()
+    with pytest.raises(LogError, match="lacks the topics /camera/image, /camera/camera_info"):
+        list(read_frames(foreign))
+
+
+def test_truncated_file_reads_up_to_its_last_whole_chunk(oracle_log, tmp_path):
+    path, _ = oracle_log
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.85)])  # past the first 256 KiB chunk
+    with pytest.warns(UserWarning, match="truncated"):
+        frames = list(read_frames(cut))
+    complete = list(read_frames(path))
+    assert 0 < len(frames) < len(complete)
+    for got, want in zip(frames, complete):
+        assert got.stamp_ns == want.stamp_ns and np.array_equal(got.T_estimate, want.T_estimate)
+
+
+def test_killed_run_leaves_every_frame_before_the_last_chunk(tmp_path):
+    out = tmp_path / "killed.mcap"
+    process = subprocess.Popen([sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400",
+                                "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < 700_000):
+        time.sleep(0.2)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        frames = list(read_frames(out))
+    assert any("truncated" in str(w.message) for w in caught)
+    assert len(frames) >= 20  # at least two 256 KiB chunks of ~16 KiB frames were complete
+    stamps = [f.stamp_ns for f in frames]
+    assert stamps == [round(i * 1e8) for i in range(len(frames))]  # 10 fps, no gap, in order
+    assert all(f.T_estimate is not None and f.T_groundtruth is not None for f in frames)
+
+
+def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
+    original = tmp_path / "classical.mcap"
+    config = OdometryConfig()
+    simulate(ScenarioConfig(frames=15, seed=5), "classical", config, original, progress=False)
+    again = tmp_path / "replayed.mcap"
+    replay(original, "classical", config, again, progress=False)
+    first, second = list(read_frames(original)), list(read_frames(again))
+    assert len(first) == len(second) == 15
+    for a, b in zip(first, second):
+        assert np.array_equal(a.image, b.image)
+        np.testing.assert_allclose(a.T_estimate, b.T_estimate, atol=1e-9)
+    with pytest.raises(ValueError, match="oracle"):
+        replay(original, "oracle", config, tmp_path / "x.mcap", progress=False)

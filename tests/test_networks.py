@@ -1,0 +1,121 @@
+import numpy as np
+import pytest
+import torch
+
+from frontend import MagicPoint, MagicWarp, match
+from frontend.cells import points_to_cells
+from frontend.classical import ClassicalDetector
+from frontend.magicpoint import VARIANTS, MagicPointNet
+from frontend.magicwarp import MagicWarpNet, normalizer, warp_loss
+from frontend.nets import fold_batchnorm
+from sim import shapes
+
+
+def _randomise_batchnorm(model):
+    for m in model.modules():
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-1, 1)
+            m.running_var.uniform_(0.5, 2)
+            m.weight.data.uniform_(0.5, 2)
+            m.bias.data.uniform_(-1, 1)
+    return model.eval()
+
+
+@pytest.mark.parametrize("net, shape", [(MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)),
+                                        (MagicWarpNet(), (2, 130, 15, 20))])
+def test_batchnorm_folding_keeps_outputs(net, shape):
+    torch.manual_seed(0)
+    net = _randomise_batchnorm(net)
+    x = torch.rand(shape)
+    folded = fold_batchnorm(net)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
+    with torch.no_grad():
+        torch.testing.assert_close(folded(x), net(x), atol=1e-5, rtol=1e-5)
+
+
+def test_cells_encoding():
+    cells = points_to_cells(np.array([[3.0, 2.0], [8.0, 0.0], [9.0, 1.0]]), (16, 16))
+    assert cells.shape == (65, 2, 2)
+    np.testing.assert_allclose(cells.sum(0), 1.0)
+    assert cells[2 * 8 + 3, 0, 0] == 1.0
+    assert cells[0, 0, 1] == 0.5 and cells[9, 0, 1] == 0.5
+    assert cells[64, 1, 0] == 1.0 and cells[64, 1, 1] == 1.0
+
+
+def test_shipped_magicpoint_detects_corners_of_a_shape(rng):
+    model = MagicPoint.pretrained("S")
+    image, corners = shapes.render("quadrilaterals", rng)
+    points = model.detect(image)
+    assert points.dtype == np.float32 and points.shape[1] == 3
+    assert np.all(np.diff(points[:, 2]) <= 0)
+    assert model.heatmap(image).shape == (120, 160)
+    cells = model.cells(image)
+    assert cells.shape == (65, 15, 20)
+    np.testing.assert_allclose(cells.sum(0), 1.0, atol=1e-5)
+
+
+def test_magicpoint_rejects_bad_images():
+    model = MagicPoint(MagicPointNet())
+    with pytest.raises(ValueError, match="divisible by 8"):
+        model.detect(np.zeros((100, 160), np.uint8))
+    with pytest.raises(ValueError, match="grayscale"):
+        model.detect(np.zeros((120, 160, 3), np.uint8))
+    with pytest.raises(ValueError, match="non-empty"):
+        model.detect(np.zeros((0, 160), np.uint8))
+    with pytest.raises(ValueError, match="uint8"):
+        model.detect(np.zeros((120, 160), np.float32))
+    with pytest.raises(ValueError, match="variant"):
+        MagicPoint.pretrained("XL")
+
+
+def test_classical_detectors_find_checkerboard_corners(rng):
+    image, corners = shapes.render("checkerboards", rng)
+    for kind in ("fast", "harris", "shi"):
+        points = ClassicalDetector(kind).detect(image)
+        assert points.dtype == np.float32 and points.shape[1] == 3
+        assert np.all(np.diff(points[:, 2]) <= 0)
+        top = points[: len(corners)]
+        hits = np.linalg.norm(top[:, None, :2] - corners[None], axis=2).min(1) <= 4
+        assert hits.mean() > 0.3, kind
+    with pytest.raises(ValueError, match="unknown classical"):
+        ClassicalDetector("sift")
+
+
+def test_warp_loss_is_zero_for_the_true_homography(rng):
+    H = torch.tensor([[1.1, 0.05, 0.1], [-0.02, 0.95, -0.05], [0.01, 0.02, 1.0]])[None]
+    a = torch.rand(1, 10, 2) * 2 - 1
+    moved = a @ H[0, :2, :2].T + H[0, :2, 2]
+    moved = moved / (a @ H[0, 2, :2] + 1)[..., None]
+    mask = torch.ones(1, 10, dtype=torch.bool)
+    assert warp_loss(H, a, moved, mask) < 1e-10
+    assert warp_loss(torch.eye(3)[None], a, moved, mask) > 1e-4
+
+
+def test_magicwarp_api_and_iterations(rng):
+    warp = MagicWarp.pretrained()
+    a = rng.uniform([0, 0], [159, 119], (40, 2))
+    b = a + [4.0, 0.0]
+    H1 = warp.estimate(a, b, (120, 160))
+    H2 = warp.estimate(a, b, (120, 160), iterations=2)
+    for H in (H1, H2):
+        assert H.dtype == np.float64 and H.shape == (3, 3) and H[2, 2] == 1.0
+    with pytest.raises(ValueError, match="iterations"):
+        warp.estimate(a, b, iterations=0)
+    with pytest.raises(ValueError, match="points_a"):
+        warp.estimate(np.zeros(5), b)
+
+
+def test_normalizer_maps_pixel_centres_to_unit_square():
+    N = normalizer((120, 160))
+    corners = np.array([[0, 0, 1], [159, 119, 1.0]]) @ N.T
+    np.testing.assert_allclose(corners[:, :2], [[-1, -1], [1, 1]])
+
+
+def test_match_is_mutually_exclusive_nearest_neighbour():
+    a = np.array([[10.0, 10.0], [12.0, 10.0], [50.0, 50.0]])
+    b = np.array([[11.0, 10.0], [50.5, 50.0], [100.0, 100.0]])
+    pairs = match(a, b, np.eye(3), max_dist=2.0)
+    assert sorted(map(tuple, pairs.tolist())) == [(0, 0), (2, 1)]  # a[1] lost b[0] to a[0] (tie, first wins)
+    shift = np.array([[1.0, 0, 40], [0, 1, 40], [0, 0, 1]])
+    assert match(a[:1], b[1:2], shift, 1.0).tolist() == [[0, 0]]
+    assert match(a, np.zeros((0, 2)), np.eye(3)).shape == (0, 2)

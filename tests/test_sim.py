@@ -1,0 +1,107 @@
+import numpy as np
+import pytest
+
+from sim import noise, shapes
+from sim.homography import HomographyConfig, sample_homography, warp_image_and_points, warp_points
+from sim.pointclouds import PairConfig, sample_pair
+from sim.pointsets import make_pair, motion_homography, random_direction
+
+
+def test_ten_categories_render_with_corners_inside_the_image(rng):
+    assert len(shapes.CATEGORIES) == 10
+    for category in shapes.CATEGORIES:
+        image, corners = shapes.render(category, rng)
+        assert image.dtype == np.uint8 and image.shape == (120, 160)
+        assert corners.dtype == np.float32 and corners.shape[1] == 2
+        assert np.all((corners >= -0.5) & (corners <= [159.5, 119.5]))
+        if category in ("ellipses", "noise"):
+            assert len(corners) == 0
+
+
+def test_positive_categories_have_corners_on_edges(rng):
+    """A labelled corner sits where the image changes: its neighbourhood is not flat."""
+    for category in ("triangles", "quadrilaterals", "checkerboards", "cubes"):
+        image, corners = shapes.render(category, rng)
+        assert len(corners) >= 1  # corners that fall outside the image are not labels
+        for x, y in corners:
+            x0, y0 = int(round(x)), int(round(y))
+            patch = image[max(0, y0 - 2):y0 + 3, max(0, x0 - 2):x0 + 3].astype(int)
+            assert patch.max() - patch.min() > 15
+
+
+def test_same_seed_same_bytes():
+    a = shapes.evaluation_set(3, seed=7)
+    b = shapes.evaluation_set(3, seed=7)
+    assert all(x[1].tobytes() == y[1].tobytes() and np.array_equal(x[2], y[2]) for x, y in zip(a, b))
+    c = shapes.evaluation_set(3, seed=8)
+    assert any(x[1].tobytes() != y[1].tobytes() for x, y in zip(a, c))
+
+
+def test_render_rejects_bad_input(rng):
+    with pytest.raises(ValueError, match="unknown category"):
+        shapes.render("hexagons", rng)
+    with pytest.raises(ValueError, match="divisible by 8"):
+        shapes.render("triangles", rng, size=(100, 160))
+
+
+def test_training_stream_yields_noisy_warped_examples(rng):
+    stream = shapes.training_stream(rng)
+    images = [next(stream)[0] for _ in range(5)]
+    assert len({im.tobytes() for im in images}) == 5
+
+
+def test_noise_magnitude_ends(rng):
+    image, _ = shapes.render("checkerboards", rng)
+    assert np.array_equal(noise.apply(image, rng, 0.0), image)
+    noisy = noise.apply(image, np.random.default_rng(0), 1.0)
+    assert noisy.dtype == np.uint8 and noisy.shape == image.shape and not np.array_equal(noisy, image)
+    random = noise.apply(image, np.random.default_rng(0), 2.0)
+    assert abs(np.corrcoef(random.ravel(), image.ravel())[0, 1]) < 0.3
+    for kind in noise.KINDS:
+        assert noise.apply(image, np.random.default_rng(0), 1.0, kind).shape == image.shape
+    with pytest.raises(ValueError, match="unknown noise kind"):
+        noise.apply(image, rng, 1.0, "fog")
+    with pytest.raises(ValueError, match=r"\[0, 2\]"):
+        noise.apply(image, rng, 2.5)
+    with pytest.raises(ValueError, match="grayscale"):
+        noise.apply(np.zeros((8, 8, 3), np.uint8), rng)
+
+
+def test_homography_warp_moves_corners_with_the_image(rng):
+    image, corners = shapes.render("quadrilaterals", rng)
+    H = sample_homography(rng, image.shape, HomographyConfig(rotation=0.1, perspective=0.05))
+    assert H[2, 2] == pytest.approx(1.0)
+    warped, moved = warp_image_and_points(image, corners, H)
+    expected = warp_points(corners, H)
+    kept = (expected[:, 0] >= -0.5) & (expected[:, 0] <= 159.5) & (expected[:, 1] >= -0.5) & (expected[:, 1] <= 119.5)
+    np.testing.assert_allclose(moved, expected[kept], atol=1e-4)
+    shifted = np.array([[1.0, 0, 200.0], [0, 1, 0], [0, 0, 1]])
+    assert len(warp_image_and_points(image, corners, shifted)[1]) == 0
+
+
+def test_point_cloud_pairs_are_consistent(rng):
+    for geometry in ("plane", "sphere", "cube", "mixed"):
+        pair = sample_pair(rng, PairConfig(), geometry)
+        assert len(pair.true_a) == len(pair.true_b) >= 4
+        assert np.all((pair.points_b >= -0.5) & (pair.points_b <= [159.5, 119.5]))
+
+
+def test_planar_pairs_follow_a_homography(rng):
+    import cv2
+    pair = sample_pair(rng, PairConfig(), "plane")
+    H, _ = cv2.findHomography(pair.true_a, pair.true_b, 0)
+    np.testing.assert_allclose(warp_points(pair.true_a, H), pair.true_b, atol=1e-3)
+
+
+def test_breakdown_motions_and_pairs(rng):
+    size = (120, 160)
+    H = motion_homography("translation", 10, size)
+    assert H[0, 2] == 10
+    direction = random_direction(rng)
+    corners = np.array([[-0.5, -0.5], [159.5, -0.5], [159.5, 119.5], [-0.5, 119.5]])
+    moved = warp_points(corners, motion_homography("random_h", 30, size, direction))
+    assert np.linalg.norm(moved - corners, axis=1).mean() == pytest.approx(30, rel=1e-6)
+    pair = make_pair(rng, H, 40, 0.2, size)
+    partners = pair.true_index >= 0
+    np.testing.assert_allclose(pair.points_b[pair.true_index[partners]], warp_points(pair.points_a[partners], H))
+    assert len(pair.points_b) == partners.sum() + 8
