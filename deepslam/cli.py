@@ -20,18 +20,53 @@ def _train_magicpoint(args: argparse.Namespace) -> None:
                     validate_every=args.validate_every, threads=args.threads))
 
 
-def _eval_detector(args: argparse.Namespace) -> None:
+def _report(out: Path, name: str, result: dict, lines: list[str], plots) -> None:
+    """Print a result's table, save it as JSON (and its plots) under ``out``."""
     import json
+    print("\n".join(lines))
+    (out / f"{name}.json").write_text(json.dumps(result, indent=1))
+    for path in [*(plots(result, out) if plots else []), out / f"{name}.json"]:
+        print(f"wrote {path}")
 
+
+def _eval_detector(args: argparse.Namespace) -> None:
     from frontend import evaluate_detector as ev
     if args.per_category < 1 or args.sweep_per_category < 1:
         raise ValueError("--per-category and --sweep-per-category must be at least 1")
     args.out.mkdir(parents=True, exist_ok=True)
     result = ev.report(ev.available_detectors(), args.per_category, args.sweep_per_category, args.seed)
-    print("\n".join(ev.table_lines(result) + [""] + ev.category_lines(result)))
-    (args.out / "detector.json").write_text(json.dumps(result, indent=1))
-    for path in ev.save_plots(result, args.out) + [args.out / "detector.json"]:
-        print(f"wrote {path}")
+    _report(args.out, "detector", result, ev.table_lines(result) + [""] + ev.category_lines(result), ev.save_plots)
+
+
+def _eval_warp(args: argparse.Namespace) -> None:
+    from frontend import evaluate_warp as ev
+    from frontend.magicwarp import MagicWarp
+    if args.runs < 1:
+        raise ValueError("--runs must be at least 1")
+    args.out.mkdir(parents=True, exist_ok=True)
+    result = ev.breakdown_table(MagicWarp.pretrained(), args.runs, args.seed)
+    _report(args.out, "warp", result, ev.table_lines(result), ev.save_plots)
+
+
+def _eval_realimages(args: argparse.Namespace) -> None:
+    from frontend import evaluate_detector as ev
+    if args.frames < 2:
+        raise ValueError("--frames must be at least 2")
+    args.out.mkdir(parents=True, exist_ok=True)
+    result = ev.static_repeatability(ev.available_detectors(threshold=0.001), args.frames, args.seed)
+    _report(args.out, "realimages", result, ev.static_lines(result), None)
+
+
+def _bench(args: argparse.Namespace) -> None:
+    if args.target == "pipeline":
+        from backend.run import bench_pipeline
+        for name, value in bench_pipeline(args.frames).items():
+            print(f"  {name:<24} {value:8.2f} {'' if name == 'fps' else 'ms'}")
+        return
+    from frontend import bench
+    rows = bench.bench_detector(args.repeats) if args.target == "detector" else bench.bench_warp(args.repeats)
+    for row in rows:
+        print("  " + "  ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
 
 
 def _odometry_config(args: argparse.Namespace):
@@ -168,6 +203,26 @@ def build_parser() -> argparse.ArgumentParser:
     detector.add_argument("--seed", type=int, default=0, help="seed of the evaluation set and its noise")
     detector.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plots")
     detector.set_defaults(func=_eval_detector)
+    warp_eval = evals.add_parser("warp", help="MagicWarp 90%% breakdown-point table and repeatability plots")
+    warp_eval.add_argument("--runs", type=int, default=50, help="random point sets per cell (the paper: 50)")
+    warp_eval.add_argument("--seed", type=int, default=0, help="seed of the point sets")
+    warp_eval.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plot")
+    warp_eval.set_defaults(func=_eval_warp)
+    real = evals.add_parser("realimages", help="repeatability on real photographs under changing light (static camera)")
+    real.add_argument("--frames", type=int, default=20, help="frames per photograph sequence")
+    real.add_argument("--seed", type=int, default=0, help="seed of the lighting and noise")
+    real.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")
+    real.set_defaults(func=_eval_realimages)
+
+    bench = commands.add_parser("bench", help="timings on one CPU thread, beside the paper's")
+    targets = bench.add_subparsers(dest="target", required=True)
+    for target, text in (("detector", "MagicPoint S/L forward pass (BatchNorm folded) and point extraction"),
+                         ("warp", "MagicWarp forward pass (BatchNorm folded)"),
+                         ("pipeline", "per-frame time of every pipeline stage (magic front-end, no rendering)")):
+        sub = targets.add_parser(target, help=text)
+        sub.add_argument("--repeats", type=int, default=100, help="timed repetitions (median reported)")
+        sub.add_argument("--frames", type=int, default=60, help="frames of the simulated run (pipeline)")
+        sub.set_defaults(func=_bench)
     return parser
 
 

@@ -40,3 +40,122 @@ def validation_figures(net: MagicWarpNet, validation: list[tuple[float, PointSet
     figures = {f"rep@{m:g}px": float(np.mean(r)) for m, r in reps.items()}
     figures["score"] = float(np.mean(list(figures.values())))
     return figures
+
+
+DENSITIES = {"low": (5, 25), "medium": (25, 50), "high": (100, 200)}
+EXTRAS = (0.0, 0.2, 0.4)
+GRIDS = {"translation": np.arange(0, 61, 1.0), "rotation": np.arange(0, 61, 1.0),
+         "scale": np.round(np.arange(1.0, 1.601, 0.01), 2), "random_h": np.arange(0, 61, 1.0)}
+UNITS = {"translation": "px", "rotation": "deg", "scale": "x", "random_h": "px"}
+PAPER = {  # (density, extra) -> NN (trans, rot, scale, randH), MagicWarp (trans, rot, scale, randH)
+    ("low", 0.0): ((8.41, 9.42, 1.20, 13.89), (24.00, 21.45, 1.32, 32.83)),
+    ("low", 0.2): ((9.05, 8.87, 1.24, 11.76), (24.06, 21.25, 1.31, 29.78)),
+    ("low", 0.4): ((7.15, 7.70, 1.20, 11.59), (22.64, 19.65, 1.20, 28.84)),
+    ("medium", 0.0): ((5.19, 5.93, 1.11, 8.03), (20.20, 20.01, 1.23, 26.52)),
+    ("medium", 0.2): ((4.82, 5.41, 1.11, 7.68), (18.29, 18.07, 1.21, 24.84)),
+    ("medium", 0.4): ((4.66, 4.50, 1.10, 6.56), (17.08, 18.03, 1.19, 24.47)),
+    ("high", 0.0): ((3.49, 3.49, 1.07, 4.87), (15.10, 15.38, 1.17, 17.51)),
+    ("high", 0.2): ((3.39, 3.34, 1.06, 4.72), (12.97, 13.97, 1.13, 15.35)),
+    ("high", 0.4): ((3.27, 3.13, 1.06, 4.26), (10.92, 11.17, 1.10, 12.13)),
+}
+
+
+def ransac_reference(pair: PointSetPair) -> np.ndarray:
+    """The classical reference: RANSAC homography on nearest-neighbour guesses (identity if it fails)."""
+    import cv2
+
+    if len(pair.points_a) < 4 or len(pair.points_b) < 4:
+        return np.eye(3)
+    nearest = np.argmin(np.linalg.norm(pair.points_a[:, None] - pair.points_b[None], axis=2), axis=1)
+    H, _ = cv2.findHomography(pair.points_a, pair.points_b[nearest], cv2.RANSAC, 3.0)
+    return np.eye(3) if H is None else H / H[2, 2]
+
+
+def _breakdown(magnitudes: np.ndarray, reps: np.ndarray, threshold: float = 90.0) -> float:
+    """First magnitude where repeatability drops below ``threshold``, linearly interpolated."""
+    below = np.nonzero(reps < threshold)[0]
+    if len(below) == 0:
+        return float(magnitudes[-1])
+    i = below[0]
+    if i == 0:
+        return float(magnitudes[0])
+    fraction = (reps[i - 1] - threshold) / max(reps[i - 1] - reps[i], 1e-9)
+    return float(magnitudes[i - 1] + fraction * (magnitudes[i] - magnitudes[i - 1]))
+
+
+def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progress: bool = True) -> dict:
+    """The paper's 90% breakdown table for NN, RANSAC, MagicWarp and MagicWarp x2 (if ``warp``).
+
+    Returns {"breakdown": {density: {extra: {method: {motion: value}}}}, "curves": {motion: {method:
+    mean repeatability per magnitude}} (medium density, 20% extra), "grids": {motion: magnitudes}}.
+    """
+    from tqdm import tqdm
+
+    methods = ["nearest_neighbour", "ransac"] + (["magicwarp", "magicwarp_x2"] if warp else [])
+    table: dict = {}
+    curves: dict = {}
+    jobs = [(d, e, m) for d in DENSITIES for e in EXTRAS for m in GRIDS]
+    for density, extra, motion in tqdm(jobs, desc="breakdown", disable=not progress):
+        grid = GRIDS[motion]
+        reps = {method: np.zeros((runs, len(grid))) for method in methods}
+        for run in range(runs):
+            rng = np.random.default_rng([seed, run])
+            count = int(rng.integers(DENSITIES[density][0], DENSITIES[density][1] + 1))
+            direction = random_direction(rng)
+            pairs = [make_pair(np.random.default_rng([seed, run, 1]),
+                               motion_homography(motion, m, SIZE, direction), count, extra, SIZE) for m in grid]
+            estimates = {"nearest_neighbour": [np.eye(3)] * len(pairs), "ransac": [ransac_reference(p) for p in pairs]}
+            if warp:
+                inputs = [(p.points_a, p.points_b) for p in pairs]
+                first = warp.estimate_batch(inputs, SIZE)
+                estimates["magicwarp"] = list(first)
+                second = warp.estimate_batch([(warp_points(a, H), b) for (a, b), H in zip(inputs, first)], SIZE)
+                estimates["magicwarp_x2"] = [h2 @ h1 / (h2 @ h1)[2, 2] for h1, h2 in zip(first, second)]
+            for method in methods:
+                reps[method][run] = [match_repeatability(H, p) for H, p in zip(estimates[method], pairs)]
+        table.setdefault(density, {}).setdefault(str(extra), {})
+        for method in methods:
+            value = float(np.mean([_breakdown(grid, r) for r in reps[method]]))
+            table[density][str(extra)].setdefault(method, {})[motion] = value
+        if density == "medium" and extra == 0.2:
+            curves[motion] = {method: reps[method].mean(0).tolist() for method in methods}
+    return {"breakdown": table, "curves": curves, "grids": {m: g.tolist() for m, g in GRIDS.items()}, "runs": runs}
+
+
+def table_lines(result: dict) -> list[str]:
+    methods = list(next(iter(next(iter(result["breakdown"].values())).values())))
+    lines = []
+    for method in methods:
+        lines.append(f"{method}: trans px / rot deg / scale x / randH px" + ("   [paper NN]" if method == "nearest_neighbour"
+                                                                               else "   [paper MagicWarp]" if method.startswith("magicwarp") else ""))
+        for density, extras in result["breakdown"].items():
+            for extra, figures in extras.items():
+                values = " ".join(f"{figures[method][m]:>7.2f}" for m in GRIDS)
+                paper = PAPER[(density, float(extra))][0 if method == "nearest_neighbour" else 1]
+                note = "   [" + " ".join(f"{v:.2f}" for v in paper) + "]" if method != "ransac" else ""
+                lines.append(f"  {density:<7}{float(extra):>4.0%} {values}{note}")
+    return lines
+
+
+def save_plots(result: dict, out_dir) -> list:
+    """Match repeatability against magnitude for the four motions (medium density, 20% extra points)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4))
+    for ax, (motion, curves) in zip(axes, result["curves"].items()):
+        grid = result["grids"][motion]
+        for method, values in curves.items():
+            ax.plot(grid, values, label=method)
+            breakdown = result["breakdown"]["medium"]["0.2"][method][motion]
+            ax.axvline(breakdown, ls="--", lw=0.8, color=ax.lines[-1].get_color())
+        ax.axhline(90, color="grey", lw=0.5)
+        ax.set(title=f"{motion} (medium density, 20% extra)", xlabel=UNITS[motion], ylabel="match repeatability (%)",
+               ylim=(0, 101))
+    axes[0].legend()
+    fig.tight_layout()
+    path = out_dir / "warp_breakdown.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]

@@ -60,7 +60,7 @@ def train(model: torch.nn.Module, config: Any, out_dir: Path,
         optimizer.step()
         step += 1
         bar.update(1)
-        bar.set_postfix({k: f"{float(v):.4g}" for k, v in out.items()} | {k: f"{v:.3g}" for k, v in figures.items()
+        bar.set_postfix({k: f"{float(v.detach()):.4g}" for k, v in out.items()} | {k: f"{v:.3g}" for k, v in figures.items()
                                                                           if k != "step"})
         if step % config.validate_every == 0 or step == config.iterations:
             model.eval()

@@ -115,7 +115,9 @@ def apply(image: np.ndarray, rng: np.random.Generator, s: float = 1.0, kind: str
         raise ValueError(f"unknown noise kind {kind!r}; expected 'full' or one of {sorted(KINDS)}")
     if not 0.0 <= s <= 2.0:
         raise ValueError(f"noise magnitude s must lie in [0, 2], got {s}")
-    image = check_image(image)
+    image = np.asarray(image)
+    if image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError(f"expected a grayscale uint8 HxW image, got {image.dtype} of shape {image.shape}")
     if s == 0.0:
         return image.copy()
     noisy = (full_noise if kind == "full" else KINDS[kind])(image, rng).astype(np.float32)
@@ -124,15 +126,23 @@ def apply(image: np.ndarray, rng: np.random.Generator, s: float = 1.0, kind: str
     return _to_uint8((2.0 - s) * noisy + (s - 1.0) * random_noise(image.shape, rng))
 
 
-def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
-    """Validate a grayscale uint8 HxW image (H, W > 0 and divisible by ``multiple_of``); returns it."""
-    image = np.asarray(image)
-    if image.ndim != 2:
-        raise ValueError(f"expected a grayscale HxW image, got an array of shape {image.shape}")
-    if image.dtype != np.uint8:
-        raise ValueError(f"expected a uint8 image, got dtype {image.dtype}")
-    if image.size == 0:
-        raise ValueError("expected a non-empty image, got shape {}".format(image.shape))
-    if image.shape[0] % multiple_of or image.shape[1] % multiple_of:
-        raise ValueError(f"image height and width must be divisible by {multiple_of}, got {image.shape}")
-    return image
+def relit_sequence(image: np.ndarray, frames: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """A static camera's view of ``image`` under changing light: a point light moving across the
+    scene (a broad Gaussian lobe), slow global brightness and gamma changes, and a little sensor
+    noise (sigma 2 grey levels). Returns ``frames`` uint8 images of the same size."""
+    h, w = image.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    start, end = rng.uniform([0, 0], [w, h]), rng.uniform([0, 0], [w, h])
+    radius = rng.uniform(0.3, 0.6) * max(h, w)
+    phase = rng.uniform(0, 2 * np.pi)
+    base = image.astype(np.float32) / 255.0
+    out = []
+    for i in range(frames):
+        t = i / max(frames - 1, 1)
+        cx, cy = start + t * (end - start)
+        light = 0.5 + 0.8 * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * radius ** 2))
+        gain = 1.0 + 0.25 * np.sin(2 * np.pi * t + phase)
+        gamma = 1.0 + 0.3 * np.sin(4 * np.pi * t + phase / 2)
+        frame = 255.0 * np.clip(base * light * gain, 0, 1) ** gamma + rng.normal(0, 2.0, (h, w))
+        out.append(_to_uint8(frame))
+    return out

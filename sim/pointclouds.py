@@ -26,7 +26,8 @@ class PairConfig:
     points: tuple[int, int] = (5, 200)
     motion: float = 1.0
     max_step: float = 0.6          # translation between the two frames at motion 1, in units of scene depth
-    max_rotation: float = 0.45     # radians between the two frames at motion 1
+    max_rotation: float = 0.45     # radians between the two frames at motion 1, about a random axis ...
+    max_roll: float = 0.6          # ... plus up to this much about the optical axis (in-plane rotation)
     min_overlap: float = 0.3
     match_dropout: float = 0.5     # fraction of matches broken by removing one side
     point_dropout: float = 0.25    # fraction of the remaining points removed in each image
@@ -103,8 +104,9 @@ def sample_pair(rng: np.random.Generator, config: PairConfig = PairConfig(), geo
         gap = int(rng.integers(1, 6))
         walk = random_walk(rng, gap + 1, config.motion * config.max_step * depth * rng.uniform(0, 1) / gap,
                            config.motion * config.max_rotation * rng.uniform(0, 1) / gap, segment_frames=2)
+        roll = pose(np.array([0.0, 0.0, config.motion * config.max_roll * rng.uniform(-1, 1)]), np.zeros(3))
         uv_a, _ = project(cloud, K)
-        uv_b, z_b = project(transform(invert(walk[-1]), cloud), K)
+        uv_b, z_b = project(transform(invert(walk[-1] @ roll), cloud), K)
         visible = (z_b > 0.1) & inside(np.nan_to_num(uv_b, nan=-1e9), size)
         if visible.mean() < config.min_overlap or visible.sum() < 4:
             continue

@@ -1,0 +1,63 @@
+"""Forward-pass timings on one CPU thread, BatchNorm folded, after warm-up (the paper's set-up)."""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+import torch
+
+PAPER_MS = {("S", (120, 160)): 5.3, ("S", (240, 320)): 38.1, ("L", (120, 160)): 19.4, ("L", (240, 320)): 150.9,
+            ("warp", (120, 160)): 2.3, ("warp", (240, 320)): 6.1}
+
+
+def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> float:
+    """Median wall time of ``fn`` in milliseconds."""
+    for _ in range(warmup):
+        fn()
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(samples))
+
+
+def bench_detector(repeats: int = 100) -> list[dict]:
+    """MagicPoint S and L forward passes and point extraction at 160x120 and 320x240."""
+    from frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint, MagicPointNet
+    from frontend.points import extract_points
+    from sim.shapes import render
+
+    torch.set_num_threads(1)
+    rows = []
+    image, _ = render("checkerboards", np.random.default_rng(0), (240, 320))
+    for variant in VARIANTS:
+        shipped = (WEIGHTS / f"magicpoint_{variant}.pt").exists()
+        model = MagicPoint.pretrained(variant) if shipped else MagicPoint(MagicPointNet(VARIANTS[variant]))
+        for size in ((120, 160), (240, 320)):
+            x = torch.rand(1, 1, *size)
+            with torch.inference_mode():
+                forward = time_ms(lambda: model.net(x), repeats if variant == "S" else max(10, repeats // 5))
+            heatmap = model.heatmap(np.ascontiguousarray(image[: size[0], : size[1]]))
+            extraction = time_ms(lambda: extract_points(heatmap, 0.015, 4, 4), repeats)
+            rows.append({"model": f"MagicPoint{variant}", "size": f"{size[1]}x{size[0]}", "forward_ms": forward,
+                         "extract_ms": extraction, "paper_ms": PAPER_MS[(variant, size)],
+                         "weights": "shipped" if shipped else "untrained"})
+    return rows
+
+
+def bench_warp(repeats: int = 200) -> list[dict]:
+    """MagicWarp forward passes on 20x15x130 and 40x30x130 inputs."""
+    from frontend.magicwarp import MagicWarp, MagicWarpNet
+
+    torch.set_num_threads(1)
+    warp = MagicWarp(MagicWarpNet())
+    rows = []
+    for size in ((120, 160), (240, 320)):
+        x = torch.rand(1, 130, size[0] // 8, size[1] // 8)
+        with torch.inference_mode():
+            forward = time_ms(lambda: warp.net(x), repeats)
+        rows.append({"model": "MagicWarp", "input": f"{size[1] // 8}x{size[0] // 8}x130", "forward_ms": forward,
+                     "paper_ms": PAPER_MS[("warp", size)]})
+    return rows
