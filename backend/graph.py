@@ -26,9 +26,9 @@ def measurement_sigmas(inliers: int, inlier_ratio: float, step_length: float,
     Uncertainty shrinks with the square root of the inlier count and grows as the inlier ratio
     drops; translation sigma is relative to the step length (monocular: scale error dominates).
     """
-    quality = np.sqrt(max(inliers, 1) / 50.0) * max(inlier_ratio, 0.05)
+    quality = min(np.sqrt(max(inliers, 1) / 50.0) * max(inlier_ratio, 0.05), 4.0)
     rotation = base_rotation / quality
-    translation = base_translation * max(step_length, 1e-3) / quality
+    translation = base_translation * max(step_length, 0.02) / quality  # >= 0.25 mm: keeps the system conditioned
     return np.array([rotation] * 3 + [translation] * 3)
 
 
@@ -49,6 +49,7 @@ class PoseGraph:
                                                 gtsam.noiseModel.Diagonal.Sigmas(np.array(config.prior_sigmas))))
         self._insert(0, first_pose)
         self.count = 1
+        self.update()
 
     def _add_factor(self, factor) -> None:
         self.graph.add(factor)

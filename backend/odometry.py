@@ -126,7 +126,6 @@ class Odometry:
         if k == 0:
             first = frame.T_world_cam if frame.T_world_cam is not None else np.eye(4)
             self.graph = PoseGraph(first)
-            self.graph.update()
             return FrameResult(0, tracks, None, first, None, np.zeros((0, 2), np.int64), None,
                                {"frontend": 1e3 * (tracked - started)})
         rel, T, pairs = self._measure(k - 1, k)
@@ -144,7 +143,10 @@ class Odometry:
         wide = shared_tracks(self.history[k - gap][1], tracks) if gap > 1 and k >= gap else np.zeros((0, 2), int)
         if self.config.method == "auto" and len(wide) >= relpose.MIN_MATCHES:
             old_tracks = self.history[k - gap][1]
-            self.model = relpose.select_model(old_tracks.points[wide[:, 0]], tracks.points[wide[:, 1]])[0]
+            try:
+                self.model = relpose.select_model(old_tracks.points[wide[:, 0]], tracks.points[wide[:, 1]])[0]
+            except cv2.error:  # degenerate wide pair: keep the previous choice
+                pass
         if len(wide) >= self.config.min_shared_tracks:
             rel_gap, T_gap, _ = self._measure(k - gap, k)
             if rel_gap.ok and rel_gap.model != "static":

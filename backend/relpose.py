@@ -177,6 +177,13 @@ def estimate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, method: str = "auto"
         return _failed(len(p1), f"{len(p1)} matches, at least {MIN_MATCHES} needed")
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < STATIC_FLOW_PX:
         return RelativePose(np.eye(4), "static", np.ones(len(p1), bool), reason="no motion")
+    try:
+        return _estimate(p1, p2, K, method, size, previous_t, sigma)
+    except cv2.error as error:  # USAC asserts on some degenerate samples instead of failing softly
+        return _failed(len(p1), f"OpenCV could not fit a model: {str(error).strip().splitlines()[-1]}")
+
+
+def _estimate(p1, p2, K, method, size, previous_t, sigma) -> RelativePose:
     if method == "pycolmap":
         return pycolmap_pose(p1, p2, K, size)
     if method == "homography":

@@ -165,3 +165,28 @@ def bench_pipeline(frames: int = 60, seed: int = 0) -> dict[str, float]:
     means["per_frame_total"] = sum(v for k, v in means.items() if k.startswith("odometry."))
     means["fps"] = 1e3 / means["per_frame_total"]
     return means
+
+
+def pipeline_matrix(worlds: tuple[str, ...] = ("plane", "room"), frontends: tuple[str, ...] = ("oracle", "magic", "classical"),
+                    noises: tuple[float, ...] = (0.0, 1.0), frames: int = 60, seeds: tuple[int, ...] = (0, 1, 2),
+                    scale: str = "gt", trajectory: str = "circle") -> list[dict]:
+    """Drift of every world x front-end x noise combination, averaged over ``seeds``."""
+    rows = []
+    for world in worlds:
+        for noise in noises:
+            for frontend in frontends:
+                runs = [simulate(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, noise=noise, seed=seed),
+                                 frontend, OdometryConfig(scale=scale), progress=False)["drift"] for seed in seeds]
+                rows.append({"world": world, "noise": noise, "frontend": frontend, "scale": scale,
+                             **{k: float(np.mean([r[k] for r in runs])) for k in ("ate_se3", "ate_sim3", "rpe_trans",
+                                                                                  "rpe_rot_deg", "final_drift_pct")}})
+    return rows
+
+
+def matrix_lines(rows: list[dict]) -> list[str]:
+    lines = [f"{'world':<6} {'noise':>5} {'frontend':<9} {'scale':<5} {'ATE SE3 m':>9} {'ATE Sim3 m':>10} {'RPE t m':>8} "
+             f"{'RPE deg':>8} {'final %':>8}"]
+    for r in rows:
+        lines.append(f"{r['world']:<6} {r['noise']:>5.1f} {r['frontend']:<9} {r['scale']:<5} {r['ate_se3']:>9.4f} "
+                     f"{r['ate_sim3']:>10.4f} {r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f}")
+    return lines

@@ -57,6 +57,14 @@ def _eval_realimages(args: argparse.Namespace) -> None:
     _report(args.out, "realimages", result, ev.static_lines(result), None)
 
 
+def _eval_pipeline(args: argparse.Namespace) -> None:
+    from backend.run import matrix_lines, pipeline_matrix
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = pipeline_matrix(tuple(args.worlds), tuple(args.frontends), tuple(args.noise), args.frames,
+                           tuple(range(args.seeds)), args.scale, args.trajectory)
+    _report(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), None)
+
+
 def _bench(args: argparse.Namespace) -> None:
     if args.target == "pipeline":
         from backend.run import bench_pipeline
@@ -213,6 +221,17 @@ def build_parser() -> argparse.ArgumentParser:
     real.add_argument("--seed", type=int, default=0, help="seed of the lighting and noise")
     real.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")
     real.set_defaults(func=_eval_realimages)
+    matrix = evals.add_parser("pipeline", help="drift over worlds x front-ends x noise (averaged over seeds)")
+    matrix.add_argument("--worlds", nargs="+", choices=("plane", "room"), default=["plane", "room"], help="worlds")
+    matrix.add_argument("--frontends", nargs="+", choices=("oracle", "magic", "classical"),
+                        default=["oracle", "magic", "classical"], help="front-ends")
+    matrix.add_argument("--noise", nargs="+", type=float, default=[0.0, 1.0], help="noise magnitudes s")
+    matrix.add_argument("--frames", type=int, default=60, help="frames per run")
+    matrix.add_argument("--seeds", type=int, default=3, help="runs per cell (seeds 0..N-1)")
+    matrix.add_argument("--scale", choices=("gt", "plane"), default="gt", help="scale method")
+    matrix.add_argument("--trajectory", choices=("circle", "figure8", "line", "random"), default="circle", help="camera path")
+    matrix.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")
+    matrix.set_defaults(func=_eval_pipeline)
 
     bench = commands.add_parser("bench", help="timings on one CPU thread, beside the paper's")
     targets = bench.add_subparsers(dest="target", required=True)

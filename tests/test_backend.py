@@ -70,7 +70,6 @@ def test_isam2_agrees_with_batch_levenberg_marquardt(rng):
     for _ in range(10):
         poses.append(poses[-1] @ pose(rng.normal(0, 0.05, 3), rng.normal(0, 0.2, 3)))
     graph = PoseGraph(poses[0])
-    graph.update()
     sigmas = np.array([0.01] * 3 + [0.05] * 3)
     for k in range(1, len(poses)):
         measured = invert(poses[k - 1]) @ poses[k] @ pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3))
