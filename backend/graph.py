@@ -19,16 +19,17 @@ class GraphConfig:
     relinearize_threshold: float = 0.001
 
 
-def measurement_sigmas(inliers: int, inlier_ratio: float, step_length: float,
+def measurement_sigmas(inliers: int, inlier_ratio: float, step_length: float, parallax_px: float = np.inf,
                        base_rotation: float = 0.01, base_translation: float = 0.05) -> np.ndarray:
     """Sigmas [rx, ry, rz, tx, ty, tz] for a relative pose estimated from ``inliers`` matches.
 
     Uncertainty shrinks with the square root of the inlier count and grows as the inlier ratio
-    drops; translation sigma is relative to the step length (monocular: scale error dominates).
+    drops; translation sigma is relative to the step length (monocular: scale error dominates) and
+    grows when the median parallax is below 5 px (the direction of a short baseline is poorly known).
     """
     quality = min(np.sqrt(max(inliers, 1) / 50.0) * max(inlier_ratio, 0.05), 4.0)
     rotation = base_rotation / quality
-    translation = base_translation * max(step_length, 0.02) / quality  # >= 0.25 mm: keeps the system conditioned
+    translation = base_translation * max(step_length, 0.02) / quality * max(1.0, 5.0 / max(parallax_px, 0.5))
     return np.array([rotation] * 3 + [translation] * 3)
 
 

@@ -1,5 +1,10 @@
 """Monocular visual odometry: front-end tracks -> relative poses -> scale -> ISAM2 pose graph.
 
+Every frame is measured against the current keyframe (a wide baseline: frame-to-frame parallax is a
+pixel or two, too little for H or E), with an extra factor to the keyframe before it when they still
+share tracks; a frame whose median track motion since the keyframe passes ``keyframe_parallax`` pixels
+becomes the next keyframe.
+
 Frames come from any source (a simulator or a replayed log) as ``InputFrame``s; the odometry needs no
 simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
 truth (the usual convention of monocular VO evaluation); ``scale="plane"`` keeps metric scale without
@@ -35,11 +40,12 @@ class InputFrame:
 
 @dataclass
 class OdometryConfig:
-    method: str = "auto"               # relative pose: auto | homography | essential | pycolmap
+    method: str = "homography"         # relative pose: homography (default, measured best here) | auto | essential | pycolmap
     scale: str = "gt"                  # gt | plane
     plane_distance: float | None = None  # for scale="plane": distance of the first camera to the plane
-    keyframe_gap: int = 5              # extra factor (and, for "auto", the model choice) with the frame this many back ...
-    min_shared_tracks: int = 30        # ... when they share at least this many tracks
+    keyframe_parallax: float = 10.0    # pixels of median track motion that make a new keyframe
+    min_parallax: float = 3.0          # pixels of median motion needed to choose between H and E ("auto")
+    min_shared_tracks: int = 20        # fewer tracks shared with the keyframe make a new keyframe too
     covariance: bool = True            # compute the latest pose's marginal covariance every frame
 
     def __post_init__(self):
@@ -51,10 +57,11 @@ class OdometryConfig:
 
 @dataclass
 class FrameResult:
-    """What the odometry made of one frame: tracks, the relative pose to the previous frame (None for
+    """What the odometry made of one frame: tracks, the relative pose to its reference keyframe (None for
     the first), the current estimate ``T_world_cam`` (4, 4), its covariance (6, 6) or None,
     the correspondences (K, 2) as indices into the previous and current tracks, the scaled
-    measurement ``T_prev_cur`` (4, 4) that went into the graph, and stage timings."""
+    measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of its reference keyframe
+    (``correspondences`` index its tracks), and stage timings."""
 
     index: int
     tracks: Tracks
@@ -62,7 +69,8 @@ class FrameResult:
     T_world_cam: np.ndarray
     covariance: np.ndarray | None
     correspondences: np.ndarray
-    T_prev_cur: np.ndarray | None = None
+    T_ref_cur: np.ndarray | None = None
+    reference: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -85,6 +93,7 @@ class Odometry:
         self.plane_distance = config.plane_distance
         self.last_translation: np.ndarray | None = None
         self.model = config.method  # "auto" until a wide-baseline pair has chosen H or E
+        self.keyframe, self.previous_keyframe = 0, None
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -117,7 +126,20 @@ class Odometry:
             if distance > 1e-3:
                 self.plane_distance = distance
 
+    def _choose_model(self, i: int, j: int, pairs: np.ndarray) -> None:
+        """For method "auto": pick H or E on the pair (i, j), the widest baseline at hand."""
+        if self.config.method != "auto" or len(pairs) < relpose.MIN_MATCHES:
+            return
+        a, b = self.history[i][1].points[pairs[:, 0]], self.history[j][1].points[pairs[:, 1]]
+        if np.median(np.linalg.norm(b - a, axis=1)) < self.config.keyframe_parallax:
+            return
+        try:
+            self.model = relpose.select_model(a, b)[0]
+        except cv2.error:  # degenerate sample: keep the previous choice
+            pass
+
     def process(self, frame: InputFrame) -> FrameResult:
+        """Track the frame, measure its pose against the current keyframe, add it to the graph, update."""
         started = time.perf_counter()
         tracks = self.tracker.track(frame.image, frame.truth)
         tracked = time.perf_counter()
@@ -126,39 +148,63 @@ class Odometry:
         if k == 0:
             first = frame.T_world_cam if frame.T_world_cam is not None else np.eye(4)
             self.graph = PoseGraph(first)
-            return FrameResult(0, tracks, None, first, None, np.zeros((0, 2), np.int64), None,
+            return FrameResult(0, tracks, None, first, None, np.zeros((0, 2), np.int64), None, 0,
                                {"frontend": 1e3 * (tracked - started)})
-        rel, T, pairs = self._measure(k - 1, k)
+        kf = self._reference(k, tracks)
+        pairs = shared_tracks(self.history[kf][1], tracks)
+        self._choose_model(kf, k, pairs)
+        rel, T, pairs = self._measure(kf, k)
+        parallax = self._parallax(kf, k, pairs)
         measured = time.perf_counter()
-        previous_pose = self.graph.pose(k - 1)
         if rel.ok:
-            sigmas = measurement_sigmas(int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])))
+            sigmas = measurement_sigmas(int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax)
             self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
-            self._update_plane_distance(rel, T)
-        else:  # keep the graph connected: constant position, very uncertain
+        else:  # keep the graph connected: no motion since the last frame, very uncertain
+            T = np.linalg.inv(self.graph.pose(kf)) @ self.graph.pose(k - 1)
             sigmas = np.array([0.5] * 3 + [1.0] * 3)
-        self.graph.add_pose(k, previous_pose @ T)
-        self.graph.add_between(k - 1, k, T, sigmas)
-        gap = self.config.keyframe_gap
-        wide = shared_tracks(self.history[k - gap][1], tracks) if gap > 1 and k >= gap else np.zeros((0, 2), int)
-        if self.config.method == "auto" and len(wide) >= relpose.MIN_MATCHES:
-            old_tracks = self.history[k - gap][1]
-            try:
-                self.model = relpose.select_model(old_tracks.points[wide[:, 0]], tracks.points[wide[:, 1]])[0]
-            except cv2.error:  # degenerate wide pair: keep the previous choice
-                pass
-        if len(wide) >= self.config.min_shared_tracks:
-            rel_gap, T_gap, _ = self._measure(k - gap, k)
-            if rel_gap.ok and rel_gap.model != "static":
-                self.graph.add_between(k - gap, k, T_gap, measurement_sigmas(
-                    int(rel_gap.inliers.sum()), rel_gap.inlier_ratio, float(np.linalg.norm(T_gap[:3, 3]))))
+        self.graph.add_pose(k, self.graph.pose(kf) @ T)
+        self.graph.add_between(kf, k, T, sigmas)
+        self._link_previous_keyframe(k, kf)
         self.graph.update()
+        current = self.keyframe
+        current_pairs = shared_tracks(self.history[current][1], tracks)
+        if self._parallax(current, k, current_pairs) >= self.config.keyframe_parallax \
+                or len(current_pairs) < self.config.min_shared_tracks:
+            if rel.ok and kf == current:
+                self._update_plane_distance(rel, T)
+            self.previous_keyframe, self.keyframe = current, k
         pose = self.graph.pose(k)
         optimised = time.perf_counter()
         covariance = self.graph.covariance(k) if self.config.covariance else None
-        return FrameResult(k, tracks, rel, pose, covariance, pairs, T, {
+        return FrameResult(k, tracks, rel, pose, covariance, pairs, T, kf, {
             "frontend": 1e3 * (tracked - started), "relative_pose": 1e3 * (measured - tracked),
             "graph": 1e3 * (optimised - measured), "covariance": 1e3 * (time.perf_counter() - optimised)})
+
+    def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
+        """Median motion (pixels) of the tracks shared by frames i and j."""
+        if len(pairs) == 0:
+            return 0.0
+        return float(np.median(np.linalg.norm(self.history[j][1].points[pairs[:, 1]]
+                                              - self.history[i][1].points[pairs[:, 0]], axis=1)))
+
+    def _reference(self, k: int, tracks: Tracks) -> int:
+        """The keyframe to measure frame k against: the current one, or the one before it while the
+        current one has too little parallax (and the older one still shares enough tracks)."""
+        kf, older = self.keyframe, self.previous_keyframe
+        if older is None or self._parallax(kf, k, shared_tracks(self.history[kf][1], tracks)) >= self.config.min_parallax:
+            return kf
+        return older if len(shared_tracks(self.history[older][1], tracks)) >= self.config.min_shared_tracks else kf
+
+    def _link_previous_keyframe(self, k: int, reference: int) -> None:
+        """An extra factor to the keyframe before the current one when it was not the reference and
+        they share enough tracks."""
+        j = self.previous_keyframe
+        if j is None or j == reference or len(shared_tracks(self.history[j][1], self.history[k][1])) < self.config.min_shared_tracks:
+            return
+        rel, T, pairs = self._measure(j, k)
+        if rel.ok and rel.model != "static":
+            self.graph.add_between(j, k, T, measurement_sigmas(int(rel.inliers.sum()), rel.inlier_ratio,
+                                                               float(np.linalg.norm(T[:3, 3])), self._parallax(j, k, pairs)))
 
     def poses(self) -> np.ndarray:
         """The optimised trajectory (N, 4, 4) ``T_world_cam``."""

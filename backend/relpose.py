@@ -114,16 +114,39 @@ def homography_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray
                         normals[best].ravel(), float(np.linalg.norm(translations[best])))
 
 
-def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> RelativePose:
-    """Relative pose from an essential matrix (MAGSAC) and ``cv2.recoverPose`` (cheirality)."""
-    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.USAC_MAGSAC, 0.999, 1.0)
-    if E is None or E.shape != (3, 3):
+def _sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Sampson distances (N,) in pixels of matches p1 -> p2 to the epipolar geometry of E."""
+    K_inv = np.linalg.inv(K)
+    F = K_inv.T @ E @ K_inv
+    h1, h2 = np.c_[p1, np.ones(len(p1))], np.c_[p2, np.ones(len(p2))]
+    Fx1, Ftx2 = h1 @ F.T, h2 @ F
+    num = np.sum(h2 * Fx1, 1) ** 2
+    return np.sqrt(num / (Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2 + 1e-12))
+
+
+def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float = 1.5) -> RelativePose:
+    """Relative pose from an essential matrix and ``cv2.recoverPose`` (cheirality).
+
+    Scenes dominated by a plane, seen over a short baseline, make E nearly degenerate: a robust fit can
+    lock onto the plane and explain only its points. So E is fitted by MAGSAC, RANSAC and LMedS and the
+    solution whose pose explains the most matches (Sampson distance below ``threshold`` pixels, in
+    front of both cameras) is kept.
+    """
+    best: RelativePose | None = None
+    for method in (cv2.USAC_MAGSAC, cv2.RANSAC, cv2.LMEDS):
+        E, _ = cv2.findEssentialMat(p1, p2, K, method, 0.999, 1.0)
+        if E is None or E.shape != (3, 3):
+            continue
+        support = (_sampson_px(E, p1, p2, K) < threshold).astype(np.uint8)[:, None]
+        _, R, t, mask = cv2.recoverPose(E, p1, p2, K, mask=support.copy())
+        inliers = mask.ravel() > 0
+        if best is None or inliers.sum() > best.inliers.sum():
+            best = RelativePose(_between(R, t), "essential", inliers)
+    if best is None:
         return _failed(len(p1), "essential matrix estimation failed")
-    _, R, t, mask = cv2.recoverPose(E, p1, p2, K, mask=mask)
-    inliers = mask.ravel() > 0
-    if inliers.sum() < MIN_MATCHES:
-        return _failed(len(p1), f"only {inliers.sum()} points passed the cheirality check")
-    return RelativePose(_between(R, t), "essential", inliers)
+    if best.inliers.sum() < MIN_MATCHES:
+        return _failed(len(p1), f"only {best.inliers.sum()} points passed the cheirality check")
+    return best
 
 
 def pycolmap_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, size: tuple[int, int],

@@ -93,17 +93,17 @@ def replay(log: str | Path, frontend: str, odometry_config: OdometryConfig, out:
             "drift": drift.summary(estimate, truth) if truth is not None else None}
 
 
-def to_log_frame(frame: InputFrame, result: FrameResult, previous_stamp_ns: int | None):
+def to_log_frame(frame: InputFrame, result: FrameResult, reference_stamp_ns: int | None):
     """The log record of one processed frame (the format lives in ``logs``; the content here)."""
     from logs.frames import Correspondences, LogFrame
 
     tracks = np.column_stack([result.tracks.points, result.tracks.scores, result.tracks.ids]) if len(result.tracks.ids) \
         else np.zeros((0, 4))
     correspondences = None
-    if result.relative is not None and previous_stamp_ns is not None:
-        correspondences = Correspondences(previous_stamp_ns, result.correspondences[:, 0], result.correspondences[:, 1],
+    if result.relative is not None and reference_stamp_ns is not None:
+        correspondences = Correspondences(reference_stamp_ns, result.correspondences[:, 0], result.correspondences[:, 1],
                                           result.relative.model, int(result.relative.inliers.sum()),
-                                          result.T_prev_cur)
+                                          result.T_ref_cur)
     return LogFrame(frame.stamp_ns, frame.image, frame.K, frame.T_world_cam, result.T_world_cam, result.covariance,
                     tracks, correspondences)
 
@@ -114,11 +114,11 @@ def run_logged(frames: Iterable[InputFrame], odometry: Odometry, out: str | Path
     finished cleanly on Ctrl-C (and then the interruption propagates)."""
     from logs.writer import LogWriter
 
-    previous: list[int] = []
+    stamps: list[int] = []
     with LogWriter(out, metadata) as log:
         def sink(frame: InputFrame, result: FrameResult) -> None:
-            log.write(to_log_frame(frame, result, previous[-1] if previous else None))
-            previous.append(frame.stamp_ns)
+            stamps.append(frame.stamp_ns)
+            log.write(to_log_frame(frame, result, stamps[result.reference]))
 
         return run_frames(frames, odometry, sink, total, progress)
 

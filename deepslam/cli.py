@@ -80,7 +80,7 @@ def _bench(args: argparse.Namespace) -> None:
 def _odometry_config(args: argparse.Namespace):
     from backend.odometry import OdometryConfig
     return OdometryConfig(method=args.method, scale=args.scale, plane_distance=args.plane_distance,
-                          keyframe_gap=args.keyframe_gap)
+                          keyframe_parallax=args.keyframe_parallax)
 
 
 def _tracker_options(args: argparse.Namespace) -> dict:
@@ -137,14 +137,15 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
     from backend.odometry import SCALES
     parser.add_argument("--frontend", choices=frontends, default="magic",
                         help="magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections")
-    parser.add_argument("--method", choices=METHODS, default="auto",
-                        help="relative pose: auto (ORB-SLAM H/F selection), homography, essential, or pycolmap")
+    parser.add_argument("--method", choices=METHODS, default="homography",
+                        help="relative pose: homography (dominant plane; default, most accurate on these worlds), "
+                             "auto (ORB-SLAM H/F selection), essential, or pycolmap")
     parser.add_argument("--scale", choices=SCALES, default="gt",
                         help="monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane")
     parser.add_argument("--plane-distance", type=float, default=None,
                         help="first camera's distance to the dominant plane for --scale plane (simulation: known)")
-    parser.add_argument("--keyframe-gap", type=int, default=5,
-                        help="frames between keyframes linked by extra factors (and used for model selection)")
+    parser.add_argument("--keyframe-parallax", type=float, default=10.0,
+                        help="median track motion (px) since the keyframe that makes a new keyframe")
     parser.add_argument("--warp-iterations", type=int, default=1, help="MagicWarp iterations (magic front-end)")
     parser.add_argument("--ransac", action="store_true", help="fundamental-matrix RANSAC on MagicWarp matches")
 

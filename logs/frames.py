@@ -8,16 +8,16 @@ import numpy as np
 
 @dataclass
 class Correspondences:
-    """Matches of the previous frame's tracks (``previous_index``) to this frame's (``current_index``),
-    the relative-pose model ("homography", "essential", "static", "failed"), its inlier count and
-    ``T_prev_cur`` (4, 4), the pose of this camera in the previous camera's frame."""
+    """Matches of the reference keyframe's tracks (``reference_index``) to this frame's
+    (``current_index``), the relative-pose model ("homography", "essential", "static", "failed"), its
+    inlier count and ``T_ref_cur`` (4, 4), the pose of this camera in the keyframe's camera frame."""
 
-    previous_stamp_ns: int
-    previous_index: np.ndarray
+    reference_stamp_ns: int
+    reference_index: np.ndarray
     current_index: np.ndarray
     model: str
     inliers: int
-    T_prev_cur: np.ndarray
+    T_ref_cur: np.ndarray
 
 
 @dataclass

@@ -54,9 +54,9 @@ def _apply(frame: dict, topic: str, message) -> None:
                                     np.asarray(message.score, np.float64), np.asarray(message.id, np.float64)], 1)
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(
-            _stamp(message.previous_stamp), np.asarray(message.previous_index, np.int64),
+            _stamp(message.reference_stamp), np.asarray(message.reference_index, np.int64),
             np.asarray(message.current_index, np.int64), message.model, int(message.inliers),
-            np.asarray(message.t_prev_cur, np.float64).reshape(4, 4))
+            np.asarray(message.t_ref_cur, np.float64).reshape(4, 4))
 
 
 def read_frames(path: str | Path) -> Iterator[LogFrame]:

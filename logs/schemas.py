@@ -28,9 +28,9 @@ _DEFINITIONS = {
     "deepslam_msgs/Tracks": ("# tracked image points of one frame (pixels, top-left pixel centre at 0,0)\n"
                              "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"),
     "deepslam_msgs/Correspondences": (
-        "# matches between the previous frame's tracks and this frame's, and the relative pose from them\n"
-        "std_msgs/Header header\nbuiltin_interfaces/Time previous_stamp\nuint32[] previous_index\n"
-        "uint32[] current_index\nstring model\nuint32 inliers\nfloat64[16] t_prev_cur"),
+        "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"
+        "std_msgs/Header header\nbuiltin_interfaces/Time reference_stamp\nuint32[] reference_index\n"
+        "uint32[] current_index\nstring model\nuint32 inliers\nfloat64[16] t_ref_cur"),
 }
 
 _DEPENDENCIES = {

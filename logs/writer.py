@@ -98,10 +98,10 @@ class LogWriter:
         c = frame.correspondences
         if c is not None:
             self._put("/frontend/correspondences", {
-                "header": _header(t, CAMERA_FRAME), "previous_stamp": _time(c.previous_stamp_ns),
-                "previous_index": np.asarray(c.previous_index, np.uint32).tolist(),
+                "header": _header(t, CAMERA_FRAME), "reference_stamp": _time(c.reference_stamp_ns),
+                "reference_index": np.asarray(c.reference_index, np.uint32).tolist(),
                 "current_index": np.asarray(c.current_index, np.uint32).tolist(),
-                "model": c.model, "inliers": int(c.inliers), "t_prev_cur": np.asarray(c.T_prev_cur, np.float64).ravel().tolist()}, t)
+                "model": c.model, "inliers": int(c.inliers), "t_ref_cur": np.asarray(c.T_ref_cur, np.float64).ravel().tolist()}, t)
         self.frames += 1
         self._file.flush()
 
