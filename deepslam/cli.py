@@ -9,7 +9,8 @@ from pathlib import Path
 def _train_magicwarp(args: argparse.Namespace) -> None:
     from frontend.train_magicwarp import TrainConfig, run
     run(args.out, TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
-                              motion_ramp=args.motion_ramp, validate_every=args.validate_every,
+                              motion_ramp=args.motion_ramp, motion_max=args.motion_max,
+                              geometry_weights=tuple(args.geometry_weights), validate_every=args.validate_every,
                               threads=args.threads))
 
 
@@ -168,7 +169,10 @@ def build_parser() -> argparse.ArgumentParser:
     warp = nets.add_parser("magicwarp", help="train MagicWarp on rendered point-cloud pairs")
     warp.add_argument("--out", type=Path, default=Path("runs/magicwarp"), help="checkpoint folder (resumes from last.pt)")
     _common_training_options(warp, iterations=40000, batch=64, lr=3e-4)
-    warp.add_argument("--motion-ramp", type=int, default=12000, help="steps over which camera motion grows to full")
+    warp.add_argument("--motion-ramp", type=int, default=12000, help="steps over which camera motion grows to --motion-max")
+    warp.add_argument("--motion-max", type=float, default=1.0, help="largest camera-motion scale of the curriculum")
+    warp.add_argument("--geometry-weights", type=float, nargs=4, default=(0.4, 0.15, 0.15, 0.3),
+                      metavar=("PLANE", "SPHERE", "CUBE", "MIXED"), help="how often each scene geometry is drawn")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")
@@ -207,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     evals = evaluate.add_subparsers(dest="experiment", required=True)
     detector = evals.add_parser("detector", help="Synthetic Shapes mAP/MLE table, per category, noise sweeps")
     detector.add_argument("--per-category", type=int, default=1000, help="images per category (the paper: 1000)")
-    detector.add_argument("--sweep-per-category", type=int, default=100,
+    detector.add_argument("--sweep-per-category", type=int, default=50,
                           help="images per category for the noise-magnitude and noise-type sweeps")
     detector.add_argument("--seed", type=int, default=0, help="seed of the evaluation set and its noise")
     detector.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plots")
@@ -248,6 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    import torch
+    torch.set_num_threads(getattr(args, "threads", 1))  # small networks: one thread is fastest, and the paper's set-up
     try:
         args.func(args)
     except (ValueError, FileNotFoundError, RuntimeError) as error:

@@ -26,13 +26,16 @@ class TrainConfig:
     seed: int = 0
     validate_every: int = 500
     motion_start: float = 0.15      # curriculum: motion scale at step 0 ...
-    motion_ramp: int = 20000        # ... growing linearly to 1 over this many steps
+    motion_ramp: int = 20000        # ... growing linearly to ``motion_max`` over this many steps
+    motion_max: float = 1.0
+    geometry_weights: tuple[float, float, float, float] = (0.4, 0.15, 0.15, 0.3)  # plane, sphere, cube, mixed
     max_matches: int = 128          # true matches per pair used by the loss
     threads: int = 1
 
 
 def motion_at(config: TrainConfig, step: int) -> float:
-    return min(1.0, config.motion_start + (1 - config.motion_start) * step / max(1, config.motion_ramp))
+    progress = min(1.0, step / max(1, config.motion_ramp))
+    return config.motion_start + (config.motion_max - config.motion_start) * progress
 
 
 def make_batch(rng: np.random.Generator, config: TrainConfig, pairs: PairConfig) -> tuple[torch.Tensor, ...]:
@@ -58,7 +61,7 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
 
     torch.set_num_threads(config.threads)
     model = MagicWarpNet(model_config)
-    pairs = PairConfig()
+    pairs = PairConfig(geometry_weights=tuple(config.geometry_weights))
     validation = validation_set(seed=config.seed + 1000)
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:

@@ -33,6 +33,7 @@ class PairConfig:
     point_dropout: float = 0.25    # fraction of the remaining points removed in each image
     max_extra: float = 0.5         # up to this fraction of spurious points added to each image
     fov_deg: tuple[float, float] = (55.0, 85.0)
+    geometry_weights: tuple[float, float, float, float] = (0.4, 0.15, 0.15, 0.3)  # plane, sphere, cube, mixed
 
 
 @dataclass
@@ -89,7 +90,8 @@ def sample_pair(rng: np.random.Generator, config: PairConfig = PairConfig(), geo
     size = config.size
     h, w = size
     for _ in range(100):
-        kind = geometry or str(rng.choice(GEOMETRIES, p=[0.4, 0.15, 0.15, 0.3]))
+        weights = np.asarray(config.geometry_weights, np.float64)
+        kind = geometry or str(rng.choice(GEOMETRIES, p=weights / weights.sum()))
         K = intrinsics(size, rng.uniform(*config.fov_deg))
         count = int(np.exp(rng.uniform(np.log(config.points[0]), np.log(config.points[1] + 1))))
         pixels = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (count * 2, 2))

@@ -144,3 +144,22 @@ def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
         np.testing.assert_allclose(a.T_estimate, b.T_estimate, atol=1e-9)
     with pytest.raises(ValueError, match="oracle"):
         replay(original, "oracle", config, tmp_path / "x.mcap", progress=False)
+
+
+def test_ctrl_c_finishes_the_file_cleanly(tmp_path):
+    out = tmp_path / "interrupted.mcap"
+    process = subprocess.Popen([sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400",
+                                "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 240
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < 300_000):
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130 and b"interrupted" in stderr
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()  # a finished file has its summary and footer
+    assert summary is not None and summary.statistics.message_count > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no truncation warning
+        frames = list(read_frames(out))
+    assert len(frames) >= 15
