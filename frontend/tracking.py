@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from frontend.magicpoint import MagicPoint
-from frontend.magicwarp import MagicWarp, match
+from frontend.magicwarp import MagicWarp, match, warp_points
 
 FRONTENDS = ("magic", "classical", "oracle")
 
@@ -75,26 +75,44 @@ def _ransac_filter(pairs: np.ndarray, a: np.ndarray, b: np.ndarray, threshold: f
 
 
 class MagicTracker(Tracker):
-    """MagicPoint + MagicWarp tracking. ``iterations`` applies MagicWarp iteratively; ``max_dist``
-    is the snapping radius in pixels; ``ransac`` adds a fundamental-matrix check."""
+    """MagicPoint + MagicWarp tracking. MagicWarp estimates H between consecutive point images;
+    every live track's position is carried by it and snapped to the nearest new detection within
+    ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
+    frames. ``iterations`` applies MagicWarp iteratively; ``ransac`` adds a fundamental-matrix check."""
 
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
-                 ransac: bool = False):
+                 ransac: bool = False, max_age: int = 3):
         super().__init__()
         self.detector, self.warp = detector, warp
-        self.max_dist, self.iterations, self.ransac = max_dist, iterations, ransac
+        self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
         self.last_homography = np.eye(3)
+        self.live = np.zeros((0, 2))                 # positions of live tracks (detected or carried)
+        self.live_ids = np.zeros(0, np.int64)
+        self.live_age = np.zeros(0, np.int64)         # frames since last detected
 
     def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
         detections = self.detector.detect(image)
         points = detections[:, :2].astype(np.float64)
         pairs = np.zeros((0, 2), np.int64)
-        if len(self.previous.points) and len(points):
-            self.last_homography = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
-            pairs = match(self.previous.points, points, self.last_homography, self.max_dist)
+        if len(self.live) and len(points):
+            if len(self.previous.points):
+                self.last_homography = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
+            self.live = warp_points(self.live, self.last_homography)
+            pairs = match(self.live, points, np.eye(3), self.max_dist)
             if self.ransac:
-                pairs = _ransac_filter(pairs, self.previous.points, points)
-        return self._link(points, detections[:, 2], pairs)
+                pairs = _ransac_filter(pairs, self.live, points)
+        ids = np.full(len(points), -1, np.int64)
+        ids[pairs[:, 1]] = self.live_ids[pairs[:, 0]]
+        fresh = ids < 0
+        ids[fresh] = self._new_ids(int(fresh.sum()))
+        missed = np.ones(len(self.live), bool)
+        missed[pairs[:, 0]] = False
+        keep = missed & (self.live_age < self.max_age)
+        self.live = np.vstack([points, self.live[keep]])
+        self.live_ids = np.concatenate([ids, self.live_ids[keep]])
+        self.live_age = np.concatenate([np.zeros(len(points), np.int64), self.live_age[keep] + 1])
+        self.previous = Tracks(points, ids, detections[:, 2].astype(np.float64))
+        return self.previous
 
 
 class ClassicalTracker(Tracker):
