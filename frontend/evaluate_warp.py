@@ -61,13 +61,14 @@ PAPER = {  # (density, extra) -> NN (trans, rot, scale, randH), MagicWarp (trans
 
 
 def ransac_reference(pair: PointSetPair) -> np.ndarray:
-    """The classical reference: RANSAC homography on nearest-neighbour guesses (identity if it fails)."""
+    """The classical reference: a robust homography (OpenCV's USAC MAGSAC, 3 px) fitted to
+    nearest-neighbour guesses (identity if it fails)."""
     import cv2
 
     if len(pair.points_a) < 4 or len(pair.points_b) < 4:
         return np.eye(3)
     nearest = np.argmin(np.linalg.norm(pair.points_a[:, None] - pair.points_b[None], axis=2), axis=1)
-    H, _ = cv2.findHomography(pair.points_a, pair.points_b[nearest], cv2.RANSAC, 3.0)
+    H, _ = cv2.findHomography(pair.points_a, pair.points_b[nearest], cv2.USAC_MAGSAC, 3.0)
     return np.eye(3) if H is None else H / H[2, 2]
 
 
