@@ -44,7 +44,9 @@ def table_lines(results: dict[str, dict]) -> list[str]:
 
 
 def save_plots(paths: list[str | Path], out_dir: Path, delta: int = 1) -> list[Path]:
-    """PNG plots: top view (x-y) of ground truth and estimates, translation error over time, RPE distribution."""
+    """PNG plots: the ground truth and estimates seen along the axis with the least motion (a top view for
+    a camera moving on the ground; a front view for one circling in a vertical plane), translation error
+    over time, RPE distribution."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -55,12 +57,15 @@ def save_plots(paths: list[str | Path], out_dir: Path, delta: int = 1) -> list[P
         stamps, truth, estimate = load_trajectories(path)
         label = Path(path).stem
         if index == 0:
-            axes[0].plot(truth[:, 0, 3], truth[:, 1, 3], "k-", lw=2, label="ground truth")
-        axes[0].plot(estimate[:, 0, 3], estimate[:, 1, 3], "-", label=label)
+            shown = np.sort(np.argsort(truth[:, :3, 3].std(0))[1:])  # the two axes with the most motion
+            axes[0].plot(truth[:, shown[0], 3], truth[:, shown[1], 3], "k-", lw=2, label="ground truth")
+        axes[0].plot(estimate[:, shown[0], 3], estimate[:, shown[1], 3], "-", label=label)
         seconds = (stamps - stamps[0]) / 1e9
         axes[1].plot(seconds, np.linalg.norm(estimate[:, :3, 3] - truth[:, :3, 3], axis=1), label=label)
         axes[2].hist(drift.rpe(estimate, truth, delta)[0], bins=30, alpha=0.5, label=label)
-    axes[0].set(title="top view (x, y)", xlabel="x (m)", ylabel="y (m)")
+    names = "xyz"
+    axes[0].set(title=f"trajectory ({names[shown[0]]}, {names[shown[1]]})", xlabel=f"{names[shown[0]]} (m)",
+                ylabel=f"{names[shown[1]]} (m)")
     axes[0].axis("equal")
     axes[1].set(title="translation error over time (no alignment)", xlabel="time (s)", ylabel="error (m)")
     axes[2].set(title=f"RPE translation, delta = {delta} frame(s)", xlabel="error (m)", ylabel="frames")

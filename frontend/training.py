@@ -46,6 +46,8 @@ def train(model: torch.nn.Module, config: Any, out_dir: Path,
         state = torch.load(last, map_location="cpu", weights_only=False)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
+        for group in optimizer.param_groups:  # resuming with another --lr applies it (a manual schedule)
+            group["lr"] = config.lr
         rng.bit_generator.state = state["rng"]
         step, best, elapsed, history = state["step"], state["best"], state["elapsed"], state["history"]
         print(f"resuming from {last} at step {step}")
