@@ -112,13 +112,19 @@ def test_truncated_file_reads_up_to_its_last_whole_chunk(oracle_log, tmp_path):
         assert got.stamp_ns == want.stamp_ns and np.array_equal(got.T_estimate, want.T_estimate)
 
 
+def _run_until(out: Path, size: int) -> subprocess.Popen:
+    """A real `deepslam run` subprocess, returned once its log has grown past ``size`` bytes."""
+    process = subprocess.Popen([sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400",
+                                "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 240
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < size):
+        time.sleep(0.2)
+    return process
+
+
 def test_killed_run_leaves_every_frame_before_the_last_chunk(tmp_path):
     out = tmp_path / "killed.mcap"
-    process = subprocess.Popen([sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400",
-                                "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 240
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 700_000):
-        time.sleep(0.2)
+    process = _run_until(out, 700_000)
     process.send_signal(signal.SIGKILL)
     process.wait()
     with warnings.catch_warnings(record=True) as caught:
@@ -148,11 +154,7 @@ def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
 
 def test_ctrl_c_finishes_the_file_cleanly(tmp_path):
     out = tmp_path / "interrupted.mcap"
-    process = subprocess.Popen([sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400",
-                                "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.time() + 240
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 300_000):
-        time.sleep(0.2)
+    process = _run_until(out, 300_000)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 130 and b"interrupted" in stderr
