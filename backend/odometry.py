@@ -106,7 +106,7 @@ class Odometry:
 
     def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray]:
         """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences)."""
-        (frame_i, tracks_i), (frame_j, tracks_j) = self.history[i], self.history[j]
+        tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
         pairs = shared_tracks(tracks_i, tracks_j)
         p1, p2 = tracks_i.points[pairs[:, 0]], tracks_j.points[pairs[:, 1]]
         rel = relpose.estimate(p1, p2, frame_j.K, self.model, frame_j.image.shape, self.last_translation)

@@ -1,7 +1,6 @@
 """Detector evaluation on Synthetic Shapes: the paper's table, per category, noise magnitude and type."""
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -15,16 +14,6 @@ Item = tuple[str, np.ndarray, np.ndarray]  # (category, image, corners)
 
 class Detector(Protocol):
     def detect(self, image: np.ndarray) -> np.ndarray: ...
-
-
-@dataclass
-class MagicPointDetector:
-    """Adapter so a MagicPoint is scored like the others (it already has ``detect``)."""
-
-    model: object
-
-    def detect(self, image: np.ndarray) -> np.ndarray:
-        return self.model.detect(image)
 
 
 def noisy_set(items: list[Item], seed: int, s: float = 1.0, kind: str = "full") -> list[Item]:

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from frontend.magicwarp import MagicWarp, MagicWarpNet, warp_points
 from sim.pointsets import PointSetPair, make_pair, motion_homography, random_direction

@@ -1,7 +1,7 @@
 """MagicWarp: a homography from two point images, and descriptor-free matching with it."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np

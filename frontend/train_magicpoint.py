@@ -46,7 +46,7 @@ def make_batch(stream, rng: np.random.Generator, batch: int, size: tuple[int, in
 
 def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int] = (120, 160)) -> dict:
     """Train (or resume) into ``out_dir``; validation mAP is on a fixed seeded noisy Synthetic Shapes set."""
-    from frontend.evaluate_detector import MagicPointDetector, evaluate_set, noisy_set
+    from frontend.evaluate_detector import evaluate_set, noisy_set
     from frontend.magicpoint import MagicPoint
     from sim.shapes import evaluation_set
 
@@ -55,16 +55,16 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int
     validation = noisy_set(evaluation_set(config.validation_per_category, seed=config.seed + 1000, size=size),
                            seed=config.seed + 1000)
     loss_fn = nn.CrossEntropyLoss()
-    streams: dict[int, object] = {}
+    stream = None  # made on the first step, from the (possibly resumed) generator state
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:
-        stream = streams.setdefault(0, training_stream(rng, size))
+        nonlocal stream
+        stream = stream or training_stream(rng, size)
         images, labels = make_batch(stream, rng, config.batch, size)
         return {"loss": loss_fn(model(images), labels)}
 
     def validate(net: MagicPointNet) -> dict:
-        detector = MagicPointDetector(MagicPoint(net, threshold=0.001))
-        figures = evaluate_set(detector, validation)
+        figures = evaluate_set(MagicPoint(net, threshold=0.001), validation)
         return {"map_noisy": figures["map"], "mle_noisy": figures["mle"]}
 
     return train(model, config, out_dir, step_fn, validate, "map_noisy")
