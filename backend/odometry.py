@@ -44,7 +44,7 @@ class OdometryConfig:
     scale: str = "gt"                  # gt | plane
     plane_distance: float | None = None  # for scale="plane": distance of the first camera to the plane
     keyframe_parallax: float = 10.0    # pixels of median track motion that make a new keyframe
-    min_parallax: float = 3.0          # pixels of median motion needed to choose between H and E ("auto")
+    min_parallax: float = 3.0          # below this median motion (px) to the keyframe, measure against the one before
     min_shared_tracks: int = 20        # fewer tracks shared with the keyframe make a new keyframe too
     covariance: bool = True            # compute the latest pose's marginal covariance every frame
 
@@ -59,9 +59,9 @@ class OdometryConfig:
 class FrameResult:
     """What the odometry made of one frame: tracks, the relative pose to its reference keyframe (None for
     the first), the current estimate ``T_world_cam`` (4, 4), its covariance (6, 6) or None,
-    the correspondences (K, 2) as indices into the previous and current tracks, the scaled
-    measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of its reference keyframe
-    (``correspondences`` index its tracks), and stage timings."""
+    the correspondences (K, 2) as indices into the reference keyframe's and this frame's tracks, the
+    scaled measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of that reference
+    keyframe, and stage timings."""
 
     index: int
     tracks: Tracks

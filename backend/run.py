@@ -132,35 +132,19 @@ def logged_frames(path: str | Path) -> Iterable[InputFrame]:
 
 
 def bench_pipeline(frames: int = 60, seed: int = 0) -> dict[str, float]:
-    """Mean per-frame milliseconds of each stage on one thread (rendering not counted), magic front-end."""
-    import time
-
+    """Mean per-frame milliseconds of each stage on one thread (rendering not counted), magic front-end:
+    the odometry's stages, and inside its front-end MagicPoint, MagicWarp and matching."""
     import torch
 
-    from frontend.magicwarp import match
-
     torch.set_num_threads(1)
-    scenario = Scenario(ScenarioConfig(frames=frames, seed=seed))
-    rendered = list(simulated_frames(scenario))
+    rendered = list(simulated_frames(Scenario(ScenarioConfig(frames=frames, seed=seed))))
     tracker = make_tracker("magic", seed)
     odometry = Odometry(tracker, OdometryConfig(covariance=False))
     stages: dict[str, list[float]] = {}
-    previous = None
     for frame in rendered:
-        start = time.perf_counter()
-        points = tracker.detector.detect(frame.image)
-        detected = time.perf_counter()
-        if previous is not None:
-            H = tracker.warp.estimate(previous[:, :2], points[:, :2], frame.image.shape)
-            warped = time.perf_counter()
-            match(previous[:, :2], points[:, :2], H, tracker.max_dist)
-            stages.setdefault("magicwarp", []).append(1e3 * (warped - detected))
-            stages.setdefault("match", []).append(1e3 * (time.perf_counter() - warped))
-        stages.setdefault("magicpoint", []).append(1e3 * (detected - start))
-        previous = points
-        result = odometry.process(frame)
-        for name, ms in result.timings_ms.items():
-            stages.setdefault(f"odometry.{name}", []).append(ms)
+        timings = odometry.process(frame).timings_ms
+        for name, ms in [*tracker.timings_ms.items(), *((f"odometry.{k}", v) for k, v in timings.items())]:
+            stages.setdefault(name, []).append(ms)
     means = {name: float(np.mean(values)) for name, values in stages.items()}
     means["per_frame_total"] = sum(v for k, v in means.items() if k.startswith("odometry."))
     means["fps"] = 1e3 / means["per_frame_total"]

@@ -9,6 +9,7 @@
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import cv2
@@ -89,18 +90,24 @@ class MagicTracker(Tracker):
         self.live = np.zeros((0, 2))                 # positions of live tracks (detected or carried)
         self.live_ids = np.zeros(0, np.int64)
         self.live_age = np.zeros(0, np.int64)         # frames since last detected
+        self.timings_ms: dict[str, float] = {}        # the last frame's stages
 
     def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+        started = time.perf_counter()
         detections = self.detector.detect(image)
+        detected = warped = time.perf_counter()
         points = detections[:, :2].astype(np.float64)
         pairs = np.zeros((0, 2), np.int64)
         if len(self.live) and len(points):
             if len(self.previous.points):
                 self.last_homography = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
+            warped = time.perf_counter()
             self.live = warp_points(self.live, self.last_homography)
             pairs = match(self.live, points, np.eye(3), self.max_dist)
             if self.ransac:
                 pairs = _ransac_filter(pairs, self.live, points)
+        self.timings_ms = {"magicpoint": 1e3 * (detected - started), "magicwarp": 1e3 * (warped - detected),
+                           "match": 1e3 * (time.perf_counter() - warped)}
         ids = np.full(len(points), -1, np.int64)
         ids[pairs[:, 1]] = self.live_ids[pairs[:, 0]]
         fresh = ids < 0
