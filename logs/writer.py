@@ -6,6 +6,9 @@ complete chunk; ``close`` (also on Ctrl-C, through the context manager) writes t
 from __future__ import annotations
 
 import json
+import signal
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -44,6 +47,25 @@ def ros_covariance(covariance: np.ndarray, T: np.ndarray) -> list[float]:
     return (rotate @ np.asarray(covariance)[np.ix_(order, order)] @ rotate.T).ravel().tolist()
 
 
+@contextmanager
+def _whole():
+    """Hold off Ctrl-C (SIGINT) until the block is done, so a frame is never half written.
+
+    Only the main thread can handle signals; elsewhere the block runs as is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received = []
+    previous = signal.signal(signal.SIGINT, lambda number, stack: received.append((number, stack)))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received and callable(previous):
+            previous(*received[0])
+
+
 class LogWriter:
     """``with LogWriter(path, metadata) as log: log.write(frame)`` for each ``LogFrame``."""
 
@@ -61,7 +83,11 @@ class LogWriter:
                                    sequence=self.frames)
 
     def write(self, frame: LogFrame) -> None:
-        """Write every topic of one frame (those whose data the frame has)."""
+        """Write every topic of one frame (those whose data the frame has); Ctrl-C waits for the whole frame."""
+        with _whole():
+            self._write(frame)
+
+    def _write(self, frame: LogFrame) -> None:
         t = frame.stamp_ns
         h, w = frame.image.shape
         ok, png = cv2.imencode(".png", frame.image)
