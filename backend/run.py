@@ -14,13 +14,15 @@ from frontend.tracking import FRONTENDS, ClassicalTracker, MagicTracker, OracleT
 from sim.scenario import Scenario, ScenarioConfig
 
 
-def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False) -> Tracker:
-    """A front-end by name (``frontend.tracking.FRONTENDS``), with the shipped networks for "magic"."""
+def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False, refine: bool = True) -> Tracker:
+    """A front-end by name (``frontend.tracking.FRONTENDS``), with the shipped networks for "magic"
+    (MagicPoint S at the evaluation threshold 0.001, at most 150 points: the oracle's budget, with
+    four grid shifts so that detections move with the image)."""
     if name == "magic":
         from frontend.magicpoint import MagicPoint
         from frontend.magicwarp import MagicWarp
-        return MagicTracker(MagicPoint.pretrained("S", top_k=150), MagicWarp.pretrained(), iterations=iterations,
-                            ransac=ransac)
+        return MagicTracker(MagicPoint.pretrained("S", threshold=0.001, top_k=150, grid_shifts=4), MagicWarp.pretrained(),
+                            iterations=iterations, ransac=ransac, refine=refine)
     if name == "classical":
         return ClassicalTracker()
     if name == "oracle":

@@ -9,7 +9,7 @@ from pathlib import Path
 def _train_magicwarp(args: argparse.Namespace) -> None:
     from frontend.train_magicwarp import TrainConfig, run
     run(args.out, TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
-                              motion_ramp=args.motion_ramp, motion_max=args.motion_max,
+                              motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                               geometry_weights=tuple(args.geometry_weights), validate_every=args.validate_every,
                               threads=args.threads))
 
@@ -45,7 +45,7 @@ def _eval_warp(args: argparse.Namespace) -> None:
     if args.runs < 1:
         raise ValueError("--runs must be at least 1")
     args.out.mkdir(parents=True, exist_ok=True)
-    result = ev.breakdown_table(MagicWarp.pretrained(), args.runs, args.seed)
+    result = ev.breakdown_table(MagicWarp.pretrained(args.weights), args.runs, args.seed)
     _report(args.out, "warp", result, ev.table_lines(result), ev.save_plots)
 
 
@@ -85,7 +85,9 @@ def _odometry_config(args: argparse.Namespace):
 
 
 def _tracker_options(args: argparse.Namespace) -> dict:
-    return {"iterations": args.warp_iterations, "ransac": args.ransac} if args.frontend == "magic" else {}
+    if args.frontend != "magic":
+        return {}
+    return {"iterations": args.warp_iterations, "ransac": args.ransac, "refine": not args.no_refine}
 
 
 def _print_drift(drift: dict, scale: str) -> None:
@@ -148,6 +150,8 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
     parser.add_argument("--keyframe-parallax", type=float, default=10.0,
                         help="median track motion (px) since the keyframe that makes a new keyframe")
     parser.add_argument("--warp-iterations", type=int, default=1, help="MagicWarp iterations (magic front-end)")
+    parser.add_argument("--no-refine", action="store_true",
+                        help="use MagicWarp's homography as it is, without refining it by snapping and a robust fit")
     parser.add_argument("--ransac", action="store_true", help="fundamental-matrix RANSAC on MagicWarp matches")
 
 
@@ -169,10 +173,13 @@ def build_parser() -> argparse.ArgumentParser:
     warp = nets.add_parser("magicwarp", help="train MagicWarp on rendered point-cloud pairs")
     warp.add_argument("--out", type=Path, default=Path("runs/magicwarp"), help="checkpoint folder (resumes from last.pt)")
     _common_training_options(warp, iterations=40000, batch=64, lr=3e-4)
-    warp.add_argument("--motion-ramp", type=int, default=12000, help="steps over which camera motion grows to --motion-max")
-    warp.add_argument("--motion-max", type=float, default=1.0, help="largest camera-motion scale of the curriculum")
-    warp.add_argument("--geometry-weights", type=float, nargs=4, default=(0.4, 0.15, 0.15, 0.3),
-                      metavar=("PLANE", "SPHERE", "CUBE", "MIXED"), help="how often each scene geometry is drawn")
+    warp.add_argument("--motion-start", type=float, default=0.3, help="motion scale of the curriculum at step 0")
+    warp.add_argument("--motion-ramp", type=int, default=12000, help="steps over which motion grows to --motion-max")
+    warp.add_argument("--motion-max", type=float, default=1.0, help="largest motion scale of the curriculum")
+    warp.add_argument("--geometry-weights", type=float, nargs=5, default=(0.2, 0.075, 0.075, 0.15, 0.5),
+                      metavar=("PLANE", "SPHERE", "CUBE", "MIXED", "HOMOGRAPHY"),
+                      help="how often each kind of pair is drawn: point clouds seen by two cameras (plane, sphere, "
+                           "cube, mixed scene) or image points moved by a random 2D homography")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")
@@ -220,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     warp_eval.add_argument("--runs", type=int, default=50, help="random point sets per cell (the paper: 50)")
     warp_eval.add_argument("--seed", type=int, default=0, help="seed of the point sets")
     warp_eval.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plot")
+    warp_eval.add_argument("--weights", type=Path, default=None,
+                           help="MagicWarp weights or a training checkpoint (default: the shipped weights)")
     warp_eval.set_defaults(func=_eval_warp)
     real = evals.add_parser("realimages", help="repeatability on real photographs under changing light (static camera)")
     real.add_argument("--frames", type=int, default=20, help="frames per photograph sequence")

@@ -1,5 +1,5 @@
 """Front-end: MagicPoint, MagicWarp, descriptor-free matching, classical baselines, tracking."""
 from frontend.magicpoint import MagicPoint
-from frontend.magicwarp import MagicWarp, match
+from frontend.magicwarp import MagicWarp, match, refine
 
-__all__ = ["MagicPoint", "MagicWarp", "match"]
+__all__ = ["MagicPoint", "MagicWarp", "match", "refine"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -49,6 +50,9 @@ class MagicPointNet(nn.Module):
         return self.head(self.encoder(image))
 
 
+GRID_SHIFTS = {1: [(0, 0)], 4: [(0, 0), (4, 0), (0, 4), (4, 4)]}  # (dx, dy) pixel shifts averaged by ``heatmap``
+
+
 def cells_to_heatmap(cells: torch.Tensor) -> torch.Tensor:
     """(B, 65, Hc, Wc) cell softmax -> (B, Hc*8, Wc*8) probabilities: dustbin dropped, depth to space."""
     return nn.functional.pixel_shuffle(cells[:, : CELL * CELL], CELL)[:, 0]
@@ -63,12 +67,18 @@ class MagicPoint:
     """The shipped MagicPoint, ready for inference (BatchNorm folded, eval mode).
 
     ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels) and ``top_k`` set point extraction.
+    ``grid_shifts`` 4 averages the heatmaps of the image shifted by 0 and 4 pixels in x and y against
+    the 8-pixel cell grid (one batch of four, about 4x the time): detections then move with the image
+    more faithfully (the single pass is not shift-equivariant within a cell).
     """
 
     def __init__(self, net: MagicPointNet, threshold: float = 0.015, nms_radius: int = 4, border: int = 4,
-                 top_k: int | None = None):
+                 top_k: int | None = None, grid_shifts: int = 1):
+        if grid_shifts not in GRID_SHIFTS:
+            raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
         self.net = fold_batchnorm(net)
         self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
+        self.grid_shifts = grid_shifts
 
     @classmethod
     def pretrained(cls, variant: str = "S", path: str | Path | None = None, **options) -> "MagicPoint":
@@ -92,7 +102,16 @@ class MagicPoint:
     @torch.inference_mode()
     def heatmap(self, image: np.ndarray) -> np.ndarray:
         """Per-pixel corner probability, float32 (H, W)."""
-        return cells_to_heatmap(torch.softmax(self.net(_as_tensor(image)), dim=1))[0].numpy()
+        if self.grid_shifts == 1:
+            return cells_to_heatmap(torch.softmax(self.net(_as_tensor(image)), dim=1))[0].numpy()
+        image = check_image(image, CELL)
+        h, w = image.shape
+        shifts = GRID_SHIFTS[self.grid_shifts]
+        batch = np.stack([cv2.copyMakeBorder(image, dy, CELL - dy, dx, CELL - dx, cv2.BORDER_REFLECT_101)
+                          for dx, dy in shifts])
+        x = torch.from_numpy(batch).float().div_(255.0)[:, None]
+        heatmaps = cells_to_heatmap(torch.softmax(self.net(x), dim=1)).numpy()
+        return np.mean([heat[dy:dy + h, dx:dx + w] for heat, (dx, dy) in zip(heatmaps, shifts)], axis=0)
 
     def detect(self, image: np.ndarray) -> np.ndarray:
         """Corners float32 (N, 3) [x, y, score] sorted by descending score."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -122,6 +123,29 @@ def warp_points(points: np.ndarray, H: np.ndarray) -> np.ndarray:
     """Apply a homography to (N, 2) points; returns (N, 2) float64."""
     moved = np.asarray(points, np.float64)[:, :2] @ H[:, :2].T + H[:, 2]
     return moved[:, :2] / moved[:, 2:3]
+
+
+def refine(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, radii: tuple[float, ...] = (8.0, 3.0),
+           threshold: float = 1.5) -> np.ndarray:
+    """Refine a homography (3, 3) mapping a to b by snapping and a robust fit, still without descriptors.
+
+    For each radius (pixels) in turn: pair the points of a warped by ``H`` with their nearest points of
+    b (``match``), then fit a homography to those pairs with OpenCV's USAC MAGSAC (``threshold``
+    pixels). Keeps the current ``H`` when fewer than 8 pairs are found or the fit fails.
+    """
+    a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
+    for radius in radii:
+        pairs = match(a, b, H, radius)
+        if len(pairs) < 8:
+            break
+        try:
+            fitted, _ = cv2.findHomography(a[pairs[:, 0]], b[pairs[:, 1]], cv2.USAC_MAGSAC, threshold)
+        except cv2.error:  # degenerate sample (e.g. collinear points)
+            break
+        if fitted is None or abs(fitted[2, 2]) < 1e-12:
+            break
+        H = fitted / fitted[2, 2]
+    return H
 
 
 def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: float = 4.0) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Front-ends: turn each frame into tracked points with track ids, behind one interface.
 
-- ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images,
-  nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top).
+- ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
+  snapping and a robust homography fit), nearest-neighbour snapping (optionally a fundamental-matrix
+  RANSAC on top).
 - ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked), replenished when tracks run low: what a practitioner would build.
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
@@ -16,7 +17,7 @@ import cv2
 import numpy as np
 
 from frontend.magicpoint import MagicPoint
-from frontend.magicwarp import MagicWarp, match, warp_points
+from frontend.magicwarp import MagicWarp, match, refine, warp_points
 
 FRONTENDS = ("magic", "classical", "oracle")
 
@@ -79,13 +80,15 @@ class MagicTracker(Tracker):
     """MagicPoint + MagicWarp tracking. MagicWarp estimates H between consecutive point images;
     every live track's position is carried by it and snapped to the nearest new detection within
     ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
-    frames. ``iterations`` applies MagicWarp iteratively; ``ransac`` adds a fundamental-matrix check."""
+    frames. ``iterations`` applies MagicWarp iteratively; ``refine`` polishes its H by snapping and a
+    robust homography fit (``frontend.magicwarp.refine``); ``ransac`` adds a fundamental-matrix check."""
 
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
-                 ransac: bool = False, max_age: int = 3):
+                 ransac: bool = False, max_age: int = 20, refine: bool = True):
         super().__init__()
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
+        self.refine = refine
         self.last_homography = np.eye(3)
         self.live = np.zeros((0, 2))                 # positions of live tracks (detected or carried)
         self.live_ids = np.zeros(0, np.int64)
@@ -100,7 +103,8 @@ class MagicTracker(Tracker):
         pairs = np.zeros((0, 2), np.int64)
         if len(self.live) and len(points):
             if len(self.previous.points):
-                self.last_homography = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
+                H = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
+                self.last_homography = refine(self.previous.points, points, H) if self.refine else H
             warped = time.perf_counter()
             self.live = warp_points(self.live, self.last_homography)
             pairs = match(self.live, points, np.eye(3), self.max_dist)

@@ -1,4 +1,5 @@
-"""Training MagicWarp on point clouds rendered into two virtual cameras (``sim.pointclouds``).
+"""Training MagicWarp on point clouds rendered into two virtual cameras (``sim.pointclouds``), mixed
+with image points moved by random 2D homographies.
 
 A curriculum widens the camera motion from small to full as training goes: the network only starts
 to learn from small motions. Validation tracks match repeatability on the breakdown experiment's
@@ -25,10 +26,10 @@ class TrainConfig:
     lr: float = 3e-4
     seed: int = 0
     validate_every: int = 500
-    motion_start: float = 0.15      # curriculum: motion scale at step 0 ...
-    motion_ramp: int = 20000        # ... growing linearly to ``motion_max`` over this many steps
+    motion_start: float = 0.3       # curriculum: motion scale at step 0 ...
+    motion_ramp: int = 12000        # ... growing linearly to ``motion_max`` over this many steps
     motion_max: float = 1.0
-    geometry_weights: tuple[float, float, float, float] = (0.4, 0.15, 0.15, 0.3)  # plane, sphere, cube, mixed
+    geometry_weights: tuple[float, ...] = (0.2, 0.075, 0.075, 0.15, 0.5)  # in the order of sim.pointclouds.GEOMETRIES
     max_matches: int = 128          # true matches per pair used by the loss
     threads: int = 1
 

@@ -34,7 +34,7 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0,
     """``T_world_cam`` of a camera at ``eye`` looking at ``target``, image "up" towards world ``up``."""
     z = np.asarray(target, np.float64) - eye
     z /= np.linalg.norm(z)
-    x = np.cross(z, -up)
+    x = np.cross(z, up)  # right = ahead x up; then y = z x x points down in the world
     if np.linalg.norm(x) < 1e-9:
         x = np.cross(z, [1.0, 0.0, 0.0])
     x /= np.linalg.norm(x)

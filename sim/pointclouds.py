@@ -4,6 +4,9 @@ Points are cast from camera A onto a scene of planes, spheres and boxes (the fir
 ray, so occlusion in A is right), and both cameras come from a random trajectory (piecewise-linear
 translation, rotation about random axes). Pairs with less than ``min_overlap`` of A's points visible
 in B are redrawn. Occlusion in camera B is not modelled.
+
+A fifth kind, ``homography``, moves random image points by a random 2D homography (translation,
+in-plane rotation, zoom and corner jitter at once): the motions of the breakdown evaluation.
 """
 from __future__ import annotations
 
@@ -12,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.camera import intrinsics, invert, pose, project, transform
-from sim.homography import inside
+from sim.homography import HomographyConfig, inside, sample_homography, warp_points
 from sim.trajectories import random_walk
 
-GEOMETRIES = ("plane", "sphere", "cube", "mixed")
+GEOMETRIES = ("plane", "sphere", "cube", "mixed", "homography")
 
 
 @dataclass(frozen=True)
@@ -33,7 +36,9 @@ class PairConfig:
     point_dropout: float = 0.25    # fraction of the remaining points removed in each image
     max_extra: float = 0.5         # up to this fraction of spurious points added to each image
     fov_deg: tuple[float, float] = (55.0, 85.0)
-    geometry_weights: tuple[float, float, float, float] = (0.4, 0.15, 0.15, 0.3)  # plane, sphere, cube, mixed
+    geometry_weights: tuple[float, ...] = (0.4, 0.15, 0.15, 0.3, 0.0)  # in the order of GEOMETRIES
+    homography: HomographyConfig = HomographyConfig(translation=0.3, rotation=np.pi / 4, scale=0.35,
+                                                    perspective=0.1)  # "homography" pairs at motion 1
 
 
 @dataclass
@@ -87,47 +92,69 @@ def _cast(rays: np.ndarray, rng: np.random.Generator, geometry: str, depth: floa
 
 def sample_pair(rng: np.random.Generator, config: PairConfig = PairConfig(), geometry: str | None = None) -> PointPair:
     """One training pair (see module docstring); ``geometry`` in ``GEOMETRIES`` or random."""
-    size = config.size
-    h, w = size
+    weights = np.asarray(config.geometry_weights, np.float64)
+    if len(weights) != len(GEOMETRIES) or weights.min() < 0 or weights.sum() <= 0:
+        raise ValueError(f"geometry_weights needs {len(GEOMETRIES)} non-negative weights ({', '.join(GEOMETRIES)})")
     for _ in range(100):
-        weights = np.asarray(config.geometry_weights, np.float64)
         kind = geometry or str(rng.choice(GEOMETRIES, p=weights / weights.sum()))
-        K = intrinsics(size, rng.uniform(*config.fov_deg))
         count = int(np.exp(rng.uniform(np.log(config.points[0]), np.log(config.points[1] + 1))))
-        pixels = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (count * 2, 2))
-        rays = np.c_[pixels, np.ones(len(pixels))] @ np.linalg.inv(K).T
-        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-        depth = rng.uniform(2.0, 6.0)
-        distance = _cast(rays, rng, kind, depth)
-        hit = np.isfinite(distance)
-        if hit.sum() < max(config.points[0], 4):
+        drawn = _homography_pair(rng, config, count) if kind == "homography" else _camera_pair(rng, config, kind, count)
+        if drawn is None:
             continue
-        cloud = (rays * distance[:, None])[hit][:count]
-        gap = int(rng.integers(1, 6))
-        walk = random_walk(rng, gap + 1, config.motion * config.max_step * depth * rng.uniform(0, 1) / gap,
-                           config.motion * config.max_rotation * rng.uniform(0, 1) / gap, segment_frames=2)
-        roll = pose(np.array([0.0, 0.0, config.motion * config.max_roll * rng.uniform(-1, 1)]), np.zeros(3))
-        uv_a, _ = project(cloud, K)
-        uv_b, z_b = project(transform(invert(walk[-1] @ roll), cloud), K)
-        visible = (z_b > 0.1) & inside(np.nan_to_num(uv_b, nan=-1e9), size)
-        if visible.mean() < config.min_overlap or visible.sum() < 4:
-            continue
-        return _with_dropout(rng, config, uv_a, uv_b, visible)
+        uv_a, uv_b, visible = drawn
+        if visible.mean() >= config.min_overlap and visible.sum() >= 4:
+            return _with_dropout(rng, config, uv_a, uv_b, visible, 1.0 if kind != "homography" else rng.uniform())
     raise RuntimeError("could not draw a point pair with enough overlap; check PairConfig")
 
 
+def _camera_pair(rng: np.random.Generator, config: PairConfig, kind: str, count: int):
+    """Projections (N, 2) of a point cloud into cameras A and B, and which are visible in B."""
+    size = config.size
+    h, w = size
+    K = intrinsics(size, rng.uniform(*config.fov_deg))
+    pixels = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (count * 2, 2))
+    rays = np.c_[pixels, np.ones(len(pixels))] @ np.linalg.inv(K).T
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    depth = rng.uniform(2.0, 6.0)
+    distance = _cast(rays, rng, kind, depth)
+    hit = np.isfinite(distance)
+    if hit.sum() < max(config.points[0], 4):
+        return None
+    cloud = (rays * distance[:, None])[hit][:count]
+    gap = int(rng.integers(1, 6))
+    walk = random_walk(rng, gap + 1, config.motion * config.max_step * depth * rng.uniform(0, 1) / gap,
+                       config.motion * config.max_rotation * rng.uniform(0, 1) / gap, segment_frames=2)
+    roll = pose(np.array([0.0, 0.0, config.motion * config.max_roll * rng.uniform(-1, 1)]), np.zeros(3))
+    uv_a, _ = project(cloud, K)
+    uv_b, z_b = project(transform(invert(walk[-1] @ roll), cloud), K)
+    return uv_a, uv_b, (z_b > 0.1) & inside(np.nan_to_num(uv_b, nan=-1e9), size)
+
+
+def _homography_pair(rng: np.random.Generator, config: PairConfig, count: int):
+    """Random points of image A (N, 2), moved by a random homography into B, and which stay in B."""
+    h, w = config.size
+    ranges = config.homography
+    amount = config.motion * rng.uniform()
+    H = sample_homography(rng, config.size, HomographyConfig(ranges.translation * amount, ranges.rotation * amount,
+                                                             ranges.scale * amount, ranges.perspective * amount))
+    uv_a = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (count, 2))
+    uv_b = warp_points(uv_a, H)
+    return uv_a, uv_b, inside(uv_b, config.size)
+
+
 def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray, uv_b: np.ndarray,
-                  visible: np.ndarray) -> PointPair:
-    """Apply match dropout, point dropout and spurious points; keep all true matches for the loss."""
+                  visible: np.ndarray, strength: float = 1.0) -> PointPair:
+    """Apply match dropout, point dropout (``strength`` times the configured fractions) and spurious
+    points; keep all true matches for the loss."""
     size = config.size
     keep_a = np.ones(len(uv_a), bool)
     keep_b = visible.copy()
-    broken = visible & (rng.random(len(uv_a)) < config.match_dropout)
+    broken = visible & (rng.random(len(uv_a)) < strength * config.match_dropout)
     side = rng.random(len(uv_a)) < 0.5
     keep_a &= ~(broken & side)
     keep_b &= ~(broken & ~side)
-    keep_a &= rng.random(len(uv_a)) >= config.point_dropout
-    keep_b &= rng.random(len(uv_a)) >= config.point_dropout
+    keep_a &= rng.random(len(uv_a)) >= strength * config.point_dropout
+    keep_b &= rng.random(len(uv_a)) >= strength * config.point_dropout
     h, w = size
 
     def with_extra(points):

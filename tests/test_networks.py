@@ -54,6 +54,16 @@ def test_shipped_magicpoint_detects_corners_of_a_shape(rng):
     np.testing.assert_allclose(cells.sum(0), 1.0, atol=1e-5)
 
 
+def test_grid_shifts_make_the_heatmap_move_with_the_image(rng):
+    image, _ = shapes.render("checkerboards", rng)
+    moved = np.roll(image, 4, axis=1)  # 4 px to the right; compare away from the wrapped border
+    single, shifted = MagicPoint.pretrained("S"), MagicPoint.pretrained("S", grid_shifts=4)
+    gap = lambda detector: np.abs(detector.heatmap(moved)[:, 44:-40] - detector.heatmap(image)[:, 40:-44]).max()
+    assert gap(shifted) < 1e-4 < 0.05 < gap(single)  # exact in the interior with shifts; not without
+    with pytest.raises(ValueError, match="grid_shifts"):
+        MagicPoint.pretrained("S", grid_shifts=2)
+
+
 def test_magicpoint_rejects_bad_images():
     model = MagicPoint(MagicPointNet())
     with pytest.raises(ValueError, match="divisible by 8"):
@@ -119,3 +129,15 @@ def test_match_is_mutually_exclusive_nearest_neighbour():
     shift = np.array([[1.0, 0, 40], [0, 1, 40], [0, 0, 1]])
     assert match(a[:1], b[1:2], shift, 1.0).tolist() == [[0, 0]]
     assert match(a, np.zeros((0, 2)), np.eye(3)).shape == (0, 2)
+
+
+def test_refine_recovers_a_homography_from_a_rough_guess(rng):
+    from frontend.magicwarp import refine, warp_points
+    true_H = np.array([[1.02, 0.03, 9.0], [-0.02, 0.99, -4.0], [1e-4, 0, 1]])
+    a = rng.uniform([0, 0], [159, 119], (60, 2))
+    b = np.vstack([warp_points(a, true_H), rng.uniform([0, 0], [159, 119], (12, 2))])  # 20% spurious points
+    rough = np.array([[1.0, 0, 6.0], [0, 1, -2.0], [0, 0, 1]])  # 3-4 px off everywhere
+    refined = refine(a, b, rough)
+    assert refined[2, 2] == 1.0
+    assert np.abs(warp_points(a, refined) - warp_points(a, true_H)).max() < 1e-3
+    assert refine(a[:5], b[:5], rough) is rough  # too few pairs: the guess stands

@@ -3,7 +3,7 @@ import pytest
 
 from sim import noise, shapes
 from sim.homography import HomographyConfig, sample_homography, warp_image_and_points, warp_points
-from sim.pointclouds import PairConfig, sample_pair
+from sim.pointclouds import GEOMETRIES, PairConfig, sample_pair
 from sim.pointsets import make_pair, motion_homography, random_direction
 
 
@@ -80,17 +80,21 @@ def test_homography_warp_moves_corners_with_the_image(rng):
 
 
 def test_point_cloud_pairs_are_consistent(rng):
-    for geometry in ("plane", "sphere", "cube", "mixed"):
+    for geometry in GEOMETRIES:
         pair = sample_pair(rng, PairConfig(), geometry)
         assert len(pair.true_a) == len(pair.true_b) >= 4
         assert np.all((pair.points_b >= -0.5) & (pair.points_b <= [159.5, 119.5]))
+    with pytest.raises(ValueError, match="geometry_weights"):
+        sample_pair(rng, PairConfig(geometry_weights=(1.0, 0.0, 0.0, 0.0)))
 
 
-def test_planar_pairs_follow_a_homography(rng):
+@pytest.mark.parametrize("geometry", ["plane", "homography"])
+def test_planar_pairs_follow_a_homography(rng, geometry):
     import cv2
-    pair = sample_pair(rng, PairConfig(), "plane")
+    pair = sample_pair(rng, PairConfig(), geometry)
     H, _ = cv2.findHomography(pair.true_a, pair.true_b, 0)
     np.testing.assert_allclose(warp_points(pair.true_a, H), pair.true_b, atol=1e-3)
+
 
 
 def test_breakdown_motions_and_pairs(rng):
@@ -105,3 +109,11 @@ def test_breakdown_motions_and_pairs(rng):
     partners = pair.true_index >= 0
     np.testing.assert_allclose(pair.points_b[pair.true_index[partners]], warp_points(pair.points_a[partners], H))
     assert len(pair.points_b) == partners.sum() + 8
+
+
+def test_look_at_keeps_world_up_at_the_top_of_the_image():
+    from sim.camera import intrinsics, invert, look_at, project, transform
+    T_world_cam = look_at(np.array([0.0, -2.0, 0.5]), np.zeros(3))
+    K = intrinsics((120, 160))
+    (above, right), _ = project(transform(invert(T_world_cam), np.array([[0.0, 0, 1], [1.0, 0, 0]])), K)
+    assert above[1] < K[1, 2] and right[0] > K[0, 2]  # world up is image up, world +x (to the right) is image right
