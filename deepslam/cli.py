@@ -34,8 +34,13 @@ def _eval_detector(args: argparse.Namespace) -> None:
     from frontend import evaluate_detector as ev
     if args.per_category < 1 or args.sweep_per_category < 1:
         raise ValueError("--per-category and --sweep-per-category must be at least 1")
+    detectors = ev.available_detectors()
+    unknown = set(args.detectors or []) - set(detectors)
+    if unknown:
+        raise ValueError(f"unknown or unavailable detectors {sorted(unknown)}; available: {', '.join(detectors)}")
     args.out.mkdir(parents=True, exist_ok=True)
-    result = ev.report(ev.available_detectors(), args.per_category, args.sweep_per_category, args.seed)
+    chosen = {name: d for name, d in detectors.items() if not args.detectors or name in args.detectors}
+    result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed)
     _report(args.out, "detector", result, ev.table_lines(result) + [""] + ev.category_lines(result), ev.save_plots)
 
 
@@ -222,6 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
                           help="images per category for the noise-magnitude and noise-type sweeps")
     detector.add_argument("--seed", type=int, default=0, help="seed of the evaluation set and its noise")
     detector.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plots")
+    detector.add_argument("--detectors", nargs="+", default=None, metavar="NAME",
+                          help="evaluate only these (MagicPointS, MagicPointL if its weights are shipped, FAST, Harris, "
+                               "Shi); default all")
     detector.set_defaults(func=_eval_detector)
     warp_eval = evals.add_parser("warp", help="MagicWarp 90%% breakdown-point table and repeatability plots")
     warp_eval.add_argument("--runs", type=int, default=50, help="random point sets per cell (the paper: 50)")

@@ -66,19 +66,20 @@ def _as_tensor(image: np.ndarray) -> torch.Tensor:
 class MagicPoint:
     """The shipped MagicPoint, ready for inference (BatchNorm folded, eval mode).
 
-    ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels) and ``top_k`` set point extraction.
+    ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels), ``top_k`` and ``subpixel`` (parabola
+    fit at each peak) set point extraction.
     ``grid_shifts`` 4 averages the heatmaps of the image shifted by 0 and 4 pixels in x and y against
     the 8-pixel cell grid (one batch of four, about 4x the time): detections then move with the image
     more faithfully (the single pass is not shift-equivariant within a cell).
     """
 
     def __init__(self, net: MagicPointNet, threshold: float = 0.015, nms_radius: int = 4, border: int = 4,
-                 top_k: int | None = None, grid_shifts: int = 1):
+                 top_k: int | None = None, grid_shifts: int = 1, subpixel: bool = False):
         if grid_shifts not in GRID_SHIFTS:
             raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
         self.net = fold_batchnorm(net)
         self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
-        self.grid_shifts = grid_shifts
+        self.grid_shifts, self.subpixel = grid_shifts, subpixel
 
     @classmethod
     def pretrained(cls, variant: str = "S", path: str | Path | None = None, **options) -> "MagicPoint":
@@ -115,4 +116,5 @@ class MagicPoint:
 
     def detect(self, image: np.ndarray) -> np.ndarray:
         """Corners float32 (N, 3) [x, y, score] sorted by descending score."""
-        return extract_points(self.heatmap(image), self.threshold, self.nms_radius, self.border, self.top_k)
+        return extract_points(self.heatmap(image), self.threshold, self.nms_radius, self.border, self.top_k,
+                              self.subpixel)

@@ -39,10 +39,26 @@ def nms_points(points: np.ndarray, radius: float) -> np.ndarray:
     return points[~suppressed]
 
 
+def subpixel(scores: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Move integer peaks (N, 3) [x, y, score] of a score map (H, W) to the vertex of a parabola fitted
+    through each peak and its two neighbours along x and along y (at most half a pixel); float32 copy."""
+    h, w = scores.shape
+    x = np.clip(points[:, 0].astype(np.int64), 1, w - 2)
+    y = np.clip(points[:, 1].astype(np.int64), 1, h - 2)
+    centre = scores[y, x].astype(np.float64)
+    refined = points.astype(np.float32).copy()
+    for axis, (before, after) in enumerate(((scores[y, x - 1], scores[y, x + 1]), (scores[y - 1, x], scores[y + 1, x]))):
+        curvature = 2 * centre - before - after
+        offset = np.where(curvature > 1e-12, 0.5 * (after - before) / np.maximum(curvature, 1e-12), 0.0)
+        refined[:, axis] += np.clip(offset, -0.5, 0.5)
+    return refined
+
+
 def extract_points(scores: np.ndarray, threshold: float, nms_radius: int = 4, border: int = 4,
-                   top_k: int | None = None) -> np.ndarray:
+                   top_k: int | None = None, refine: bool = False) -> np.ndarray:
     """Points of a score map (H, W): local maxima in a (2r+1)^2 window above ``threshold``, at least
-    ``border`` pixels from the edge, then greedy NMS with radius r, best ``top_k`` kept.
+    ``border`` pixels from the edge, then greedy NMS with radius r, best ``top_k`` kept; with
+    ``refine``, moved to sub-pixel positions (``subpixel``).
 
     Returns float32 (N, 3) [x, y, score] sorted by descending score.
     """
@@ -56,4 +72,5 @@ def extract_points(scores: np.ndarray, threshold: float, nms_radius: int = 4, bo
         peaks[:border], peaks[-border:], peaks[:, :border], peaks[:, -border:] = False, False, False, False
     y, x = np.nonzero(peaks)
     points = nms_points(np.stack([x, y, scores[y, x]], 1).astype(np.float32), nms_radius)
-    return points[:top_k] if top_k else points
+    points = points[:top_k] if top_k else points
+    return subpixel(scores, points) if refine else points

@@ -42,3 +42,16 @@ def test_repeatability_at_n_takes_the_best_count():
     p2 = np.array([[10.0, 10.0, 0.9], [90.0, 90.0, 0.5]])
     rep, n = repeatability_at_n([(p1, p2, np.eye(3))], (120, 160), counts=(1, 2))
     assert rep == 1.0 and n == 1.0
+
+
+def test_point_extraction_nms_border_top_k_and_subpixel():
+    from frontend.points import extract_points
+    yy, xx = np.mgrid[0:40, 0:48].astype(np.float32)
+    peaks = [(20.3, 12.6, 0.9), (23.0, 13.0, 0.5), (40.0, 30.0, 0.7), (1.0, 1.0, 1.0)]  # 2nd: within NMS of 1st; 4th: border
+    scores = sum(s * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2) for x, y, s in peaks).astype(np.float32)
+    points = extract_points(scores, 0.1, nms_radius=4, border=4)
+    assert points[:, :2].tolist() == [[20, 13], [40, 30]]  # sorted by score, neighbour and border peaks gone
+    assert len(extract_points(scores, 0.1, top_k=1)) == 1
+    refined = extract_points(scores, 0.1, refine=True)
+    assert np.abs(refined[0, :2] - [20.3, 12.6]).max() < np.abs(points[0, :2] - [20.3, 12.6]).max() / 2
+    np.testing.assert_allclose(refined[1, :2], [40, 30], atol=1e-6)  # a symmetric peak stays put
