@@ -21,6 +21,14 @@ def _train_magicpoint(args: argparse.Namespace) -> None:
                     validate_every=args.validate_every, threads=args.threads))
 
 
+def _export(args: argparse.Namespace) -> None:
+    from frontend.training import export_weights
+    if not args.checkpoint.exists():
+        raise FileNotFoundError(f"no checkpoint at {args.checkpoint}")
+    state = export_weights(args.checkpoint, args.out)
+    print(f"wrote {args.out} (step {state['step']}, {args.out.stat().st_size / 1e6:.2f} MB)")
+
+
 def _report(out: Path, name: str, result: dict, lines: list[str], plots) -> None:
     """Print a result's table, save it as JSON (and its plots) under ``out``."""
     import json
@@ -191,6 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
     point.add_argument("--out", type=Path, default=None, help="checkpoint folder (default runs/magicpoint_VARIANT)")
     _common_training_options(point, iterations=8000, batch=32, lr=1e-3)
     point.set_defaults(func=_train_magicpoint)
+    export = nets.add_parser("export", help="strip a training checkpoint down to the weights that ship")
+    export.add_argument("checkpoint", type=Path, help="a training checkpoint, e.g. runs/magicpoint_S/best.pt")
+    export.add_argument("out", type=Path, help="where to write the weights, e.g. frontend/weights/magicpoint_S.pt")
+    export.set_defaults(func=_export)
 
     run = commands.add_parser("run", help="run a simulated trajectory end to end, log it to MCAP, print drift")
     run.add_argument("--world", choices=("plane", "room"), default="plane", help="simulated world")

@@ -7,6 +7,7 @@ checkpoint left it. Progress shows loss, throughput and the latest validation fi
 from __future__ import annotations
 
 import json
+import pickle
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -25,6 +26,22 @@ def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.O
     tmp = path.with_suffix(".tmp")
     torch.save(state, tmp)
     tmp.replace(path)
+
+
+def export_weights(checkpoint: Path, out: Path) -> dict:
+    """Write the inference part of a training checkpoint (model, configs, step; no optimiser or
+    generator state) to ``out``, the form shipped in ``frontend/weights``; returns what was kept."""
+    try:
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    except (pickle.UnpicklingError, RuntimeError, EOFError) as error:
+        raise ValueError(f"{checkpoint} is not a torch checkpoint ({error})") from None
+    missing = {"model", "config", "step"} - set(state if isinstance(state, dict) else {})
+    if missing:
+        raise ValueError(f"{checkpoint} is not a training checkpoint (no {', '.join(sorted(missing))})")
+    kept = {key: state[key] for key in ("model", "config", "step", "train_config") if key in state}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(kept, out)
+    return kept
 
 
 def train(model: torch.nn.Module, config: Any, out_dir: Path,

@@ -1,7 +1,10 @@
 """Smoke runs of a few iterations: the training loops run, checkpoint and resume."""
+import numpy as np
+import pytest
 import torch
 
-from frontend import train_magicpoint, train_magicwarp
+from frontend import MagicPoint, train_magicpoint, train_magicwarp
+from frontend.training import export_weights
 
 
 def test_magicpoint_training_runs_and_resumes(tmp_path):
@@ -11,6 +14,13 @@ def test_magicpoint_training_runs_and_resumes(tmp_path):
     longer = train_magicpoint.TrainConfig(iterations=3, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path, longer)
     assert torch.load(tmp_path / "last.pt", weights_only=False)["step"] == 3
+    shipped = export_weights(tmp_path / "last.pt", tmp_path / "weights.pt")
+    assert "optimizer" not in shipped and "rng" not in shipped
+    detector = MagicPoint.pretrained("S", path=tmp_path / "weights.pt")  # loads like the shipped weights
+    assert detector.heatmap(np.zeros((32, 32), np.uint8)).shape == (32, 32)
+    with pytest.raises(ValueError, match="not a torch checkpoint"):
+        (tmp_path / "junk.pt").write_text("junk")
+        export_weights(tmp_path / "junk.pt", tmp_path / "x.pt")
 
 
 def test_magicwarp_training_runs_and_resumes(tmp_path):
