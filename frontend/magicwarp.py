@@ -97,7 +97,7 @@ class MagicWarp:
         """Homographies (B, 3, 3) float64 in pixels for several (points_a, points_b) pairs at once."""
         cells = np.concatenate([points_to_cells_batch([a for a, _ in pairs], image_size),
                                 points_to_cells_batch([b for _, b in pairs], image_size)], axis=1)
-        H = self.net(torch.from_numpy(cells)).double().numpy()
+        H = self.net(torch.from_numpy(cells).contiguous(memory_format=torch.channels_last)).double().numpy()
         N = normalizer(image_size)
         H = np.linalg.inv(N) @ H @ N
         return H / H[:, 2:3, 2:3]
