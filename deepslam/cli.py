@@ -67,8 +67,11 @@ def _eval_realimages(args: argparse.Namespace) -> None:
     if args.frames < 2:
         raise ValueError("--frames must be at least 2")
     args.out.mkdir(parents=True, exist_ok=True)
-    result = ev.static_repeatability(ev.available_detectors(threshold=0.001), args.frames, args.seed)
-    _report(args.out, "realimages", result, ev.static_lines(result), None)
+    if args.jitter < 0:
+        raise ValueError("--jitter must be at least 0")
+    result = ev.static_repeatability(ev.available_detectors(threshold=0.001), args.frames, args.seed, jitter_px=args.jitter)
+    _report(args.out, f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages", result,
+            ev.static_lines(result), None)
 
 
 def _eval_pipeline(args: argparse.Namespace) -> None:
@@ -254,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
     real.add_argument("--frames", type=int, default=20, help="frames per photograph sequence")
     real.add_argument("--seed", type=int, default=0, help="seed of the lighting and noise")
     real.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")
+    real.add_argument("--jitter", type=float, default=0.0,
+                      help="also move the camera: translate every frame by up to this many pixels (0: static, "
+                           "as the paper's Static Corners; the JSON is then named realimages_jitterPX)")
     real.set_defaults(func=_eval_realimages)
     matrix = evals.add_parser("pipeline", help="drift over worlds x front-ends x noise (averaged over seeds)")
     matrix.add_argument("--worlds", nargs="+", choices=("plane", "room"), default=["plane", "room"], help="worlds")

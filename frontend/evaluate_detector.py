@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -44,12 +45,14 @@ SWEEP = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
 
 
 def available_detectors(threshold: float = 0.001) -> dict[str, Detector]:
-    """FAST, Harris, Shi, and every MagicPoint variant whose weights are shipped."""
+    """FAST, Harris, Shi, every MagicPoint variant whose weights are shipped, and MagicPoint S with four
+    grid shifts (``MagicPointS-x4``)."""
     from frontend.classical import ClassicalDetector
     from frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
 
     detectors: dict[str, Detector] = {f"MagicPoint{v}": MagicPoint.pretrained(v, threshold=threshold)
                                       for v in VARIANTS if (WEIGHTS / f"magicpoint_{v}.pt").exists()}
+    detectors["MagicPointS-x4"] = MagicPoint.pretrained("S", threshold=threshold, grid_shifts=4)  # what tracking uses
     detectors.update({"FAST": ClassicalDetector("fast"), "Harris": ClassicalDetector("harris"),
                       "Shi": ClassicalDetector("shi")})
     return detectors
@@ -162,10 +165,21 @@ def photo(name: str, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_AREA)
 
 
+def _jittered(sequence: list[np.ndarray], rng: np.random.Generator, jitter_px: float) -> tuple[list, list]:
+    """Each frame moved by its own random translation of up to ``jitter_px`` pixels in x and y (a
+    hand-held camera; reflected borders); returns (frames, homographies (3, 3) from each frame to the next)."""
+    shifts = rng.uniform(-jitter_px, jitter_px, (len(sequence), 2))
+    moves = [np.array([[1.0, 0, dx], [0, 1, dy], [0, 0, 1]]) for dx, dy in shifts]
+    frames = [cv2.warpAffine(f, M[:2], f.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+              for f, M in zip(sequence, moves)]
+    return frames, [b @ np.linalg.inv(a) for a, b in zip(moves, moves[1:])]
+
+
 def static_repeatability(detectors: dict[str, Detector], frames: int = 20, seed: int = 0,
-                         sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320))) -> dict:
-    """Frame-to-frame repeatability@N (eps=2, identity homography) on real photographs seen by a
-    static camera under changing light, clean and with the full noise of ``sim.noise``."""
+                         sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320)), jitter_px: float = 0.0) -> dict:
+    """Frame-to-frame repeatability@N (eps=2) on real photographs seen by a static camera under
+    changing light, clean and with the full noise of ``sim.noise``; with ``jitter_px`` > 0 every frame
+    is also translated by up to that many pixels (the true homographies are used)."""
     from frontend.metrics import repeatability_at_n
 
     result: dict = {}
@@ -175,13 +189,15 @@ def static_repeatability(detectors: dict[str, Detector], frames: int = 20, seed:
             sequences = []
             for name in PHOTOS:
                 sequence = noise.relit_sequence(photo(name, size), frames, rng)
-                sequences.append([noise.apply(f, rng, 1.0) for f in sequence] if noisy else sequence)
+                sequence = [noise.apply(f, rng, 1.0) for f in sequence] if noisy else sequence
+                sequences.append(_jittered(sequence, rng, jitter_px) if jitter_px > 0
+                                 else (sequence, [np.eye(3)] * (len(sequence) - 1)))
             key = f"{size[1]}x{size[0]} {'noisy' if noisy else 'clean'}"
             for name, detector in detectors.items():
                 pairs = []
-                for sequence in tqdm(sequences, desc=f"{name} {key}", leave=False):
+                for sequence, homographies in tqdm(sequences, desc=f"{name} {key}", leave=False):
                     points = [detector.detect(f) for f in sequence]
-                    pairs += [(a, b, np.eye(3)) for a, b in zip(points, points[1:])]
+                    pairs += list(zip(points, points[1:], homographies))
                 rep, count = repeatability_at_n(pairs, size)
                 result.setdefault(name, {})[key] = {"repeatability": rep, "n": count}
     return result

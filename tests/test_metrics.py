@@ -55,3 +55,16 @@ def test_point_extraction_nms_border_top_k_and_subpixel():
     refined = extract_points(scores, 0.1, refine=True)
     assert np.abs(refined[0, :2] - [20.3, 12.6]).max() < np.abs(points[0, :2] - [20.3, 12.6]).max() / 2
     np.testing.assert_allclose(refined[1, :2], [40, 30], atol=1e-6)  # a symmetric peak stays put
+
+
+def test_jittered_real_image_frames_come_with_their_true_motion():
+    from frontend.classical import ClassicalDetector
+    from frontend.evaluate_detector import _jittered, photo
+    from frontend.metrics import repeatability_at_n
+    image = photo("camera", (120, 160))
+    frames, homographies = _jittered([image] * 4, np.random.default_rng(0), jitter_px=3.0)
+    assert len(homographies) == 3 and not np.allclose(homographies[0], np.eye(3))
+    points = [ClassicalDetector("shi").detect(f) for f in frames]
+    true_motion, _ = repeatability_at_n(list(zip(points, points[1:], homographies)), image.shape)
+    no_motion, _ = repeatability_at_n([(a, b, np.eye(3)) for a, b in zip(points, points[1:])], image.shape)
+    assert true_motion > 0.8 > no_motion + 0.2
