@@ -9,6 +9,7 @@ from tqdm import tqdm
 
 from frontend.metrics import average_precision, localization_error, match_detections, merge
 from sim import noise
+from sim.world import photo
 
 Item = tuple[str, np.ndarray, np.ndarray]  # (category, image, corners)
 
@@ -152,17 +153,6 @@ PAPER_STATIC_R = {  # the paper's 30 Static Corners repeatability: (160x120 clea
     "MagicPointL": (0.970, 0.811, 0.959, 0.765), "MagicPointS": (0.929, 0.711, 0.920, 0.675),
     "FAST": (0.800, 0.141, 0.812, 0.099), "Harris": (0.929, 0.136, 0.896, 0.081), "Shi": (0.852, 0.148, 0.827, 0.104),
 }
-
-
-def photo(name: str, size: tuple[int, int]) -> np.ndarray:
-    """A grayscale photograph shipped with scikit-image, resized to ``size`` (H, W)."""
-    import cv2
-    import skimage.data
-
-    image = getattr(skimage.data, name)()
-    if image.ndim == 3:
-        image = cv2.cvtColor(image[..., :3], cv2.COLOR_RGB2GRAY)
-    return cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_AREA)
 
 
 def _jittered(sequence: list[np.ndarray], rng: np.random.Generator, jitter_px: float) -> tuple[list, list]:

@@ -100,13 +100,18 @@ class World:
         return ids[unoccluded], pixels[ids[unoccluded]]
 
 
+def photo(name: str, size: tuple[int, int]) -> np.ndarray:
+    """A grayscale photograph shipped with scikit-image (``skimage.data.<name>``), resized to ``size`` (H, W)."""
+    image = getattr(skimage.data, name)()
+    if image.ndim == 3:
+        image = cv2.cvtColor(image[..., :3], cv2.COLOR_RGB2GRAY)
+    return cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_AREA)
+
+
 def _texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
     """A texture: a real photograph shipped with scikit-image (2/3 of the time) or a shapes render."""
     if rng.random() < 2 / 3:
-        photo = getattr(skimage.data, str(rng.choice(_PHOTOS)))()
-        if photo.ndim == 3:
-            photo = cv2.cvtColor(photo[..., :3], cv2.COLOR_RGB2GRAY)
-        return cv2.resize(photo, (size, size), interpolation=cv2.INTER_AREA)
+        return photo(str(rng.choice(_PHOTOS)), (size, size))
     image, _ = render(str(rng.choice(CATEGORIES[:8])), rng, (size // 2, size // 2))
     return cv2.resize(image, (size, size), interpolation=cv2.INTER_LINEAR)
 

@@ -59,7 +59,8 @@ def test_point_extraction_nms_border_top_k_and_subpixel():
 
 def test_jittered_real_image_frames_come_with_their_true_motion():
     from frontend.classical import ClassicalDetector
-    from frontend.evaluate_detector import _jittered, photo
+    from frontend.evaluate_detector import _jittered
+    from sim.world import photo
     from frontend.metrics import repeatability_at_n
     image = photo("camera", (120, 160))
     frames, homographies = _jittered([image] * 4, np.random.default_rng(0), jitter_px=3.0)
