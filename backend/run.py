@@ -21,8 +21,8 @@ def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = F
     if name == "magic":
         from frontend.magicpoint import MagicPoint
         from frontend.magicwarp import MagicWarp
-        return MagicTracker(MagicPoint.pretrained("S", threshold=0.001, top_k=150, grid_shifts=4, subpixel=True), MagicWarp.pretrained(),
-                            iterations=iterations, ransac=ransac, refine=refine)
+        detector = MagicPoint.pretrained("S", threshold=0.001, top_k=150, grid_shifts=4, subpixel=True)
+        return MagicTracker(detector, MagicWarp.pretrained(), iterations=iterations, ransac=ransac, refine=refine)
     if name == "classical":
         return ClassicalTracker()
     if name == "oracle":

@@ -243,8 +243,8 @@ def build_parser() -> argparse.ArgumentParser:
     detector.add_argument("--seed", type=int, default=0, help="seed of the evaluation set and its noise")
     detector.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plots")
     detector.add_argument("--detectors", nargs="+", default=None, metavar="NAME",
-                          help="evaluate only these (MagicPointS, MagicPointL if its weights are shipped, FAST, Harris, "
-                               "Shi); default all")
+                          help="evaluate only these (MagicPointS, MagicPointL, MagicPointS-x4 = S with four grid shifts, "
+                               "FAST, Harris, Shi); default all")
     detector.set_defaults(func=_eval_detector)
     warp_eval = evals.add_parser("warp", help="MagicWarp 90%% breakdown-point table and repeatability plots")
     warp_eval.add_argument("--runs", type=int, default=50, help="random point sets per cell (the paper: 50)")
