@@ -18,7 +18,7 @@ def _train_magicpoint(args: argparse.Namespace) -> None:
     from frontend.train_magicpoint import TrainConfig, run
     run(args.out or Path(f"runs/magicpoint_{args.variant}"),
         TrainConfig(variant=args.variant, iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
-                    validate_every=args.validate_every, threads=args.threads))
+                    validate_every=args.validate_every, threads=args.threads, clean_share=args.clean_share))
 
 
 def _export(args: argparse.Namespace) -> None:
@@ -42,7 +42,7 @@ def _eval_detector(args: argparse.Namespace) -> None:
     from frontend import evaluate_detector as ev
     if args.per_category < 1 or args.sweep_per_category < 1:
         raise ValueError("--per-category and --sweep-per-category must be at least 1")
-    detectors = ev.available_detectors()
+    detectors = ev.available_detectors(**ev.SHAPES_EXTRACTION)
     unknown = set(args.detectors or []) - set(detectors)
     if unknown:
         raise ValueError(f"unknown or unavailable detectors {sorted(unknown)}; available: {', '.join(detectors)}")
@@ -201,6 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")
     point.add_argument("--out", type=Path, default=None, help="checkpoint folder (default runs/magicpoint_VARIANT)")
     _common_training_options(point, iterations=8000, batch=32, lr=1e-3)
+    point.add_argument("--clean-share", type=float, default=0.0,
+                       help="share (0-1) of training images left without photometric noise (default 0: all noisy)")
     point.set_defaults(func=_train_magicpoint)
     export = nets.add_parser("export", help="strip a training checkpoint down to the weights that ship")
     export.add_argument("checkpoint", type=Path, help="a training checkpoint, e.g. runs/magicpoint_S/best.pt")

@@ -24,6 +24,7 @@ class TrainConfig:
     validate_every: int = 500
     validation_per_category: int = 20
     threads: int = 1
+    clean_share: float = 0.0  # share of training images left without photometric noise
 
 
 def cell_labels(corners: list[np.ndarray], size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
@@ -45,26 +46,28 @@ def make_batch(stream, rng: np.random.Generator, batch: int, size: tuple[int, in
 
 
 def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int] = (120, 160)) -> dict:
-    """Train (or resume) into ``out_dir``; validation mAP is on a fixed seeded noisy Synthetic Shapes set."""
-    from frontend.evaluate_detector import evaluate_set, noisy_set
+    """Train (or resume) into ``out_dir``. Validation: mAP and MLE on a fixed seeded Synthetic Shapes set,
+    noisy and clean, extracted as the evaluation does; the noisy mAP picks ``best.pt``."""
+    from frontend.evaluate_detector import SHAPES_EXTRACTION, evaluate_set, noisy_set
     from frontend.magicpoint import MagicPoint
     from sim.shapes import evaluation_set
 
     torch.set_num_threads(config.threads)
     model = MagicPointNet(VARIANTS[config.variant])
-    validation = noisy_set(evaluation_set(config.validation_per_category, seed=config.seed + 1000, size=size),
-                           seed=config.seed + 1000)
+    clean_validation = evaluation_set(config.validation_per_category, seed=config.seed + 1000, size=size)
+    validation = noisy_set(clean_validation, seed=config.seed + 1000)
     loss_fn = nn.CrossEntropyLoss()
     stream = None  # made on the first step, from the (possibly resumed) generator state
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:
         nonlocal stream
-        stream = stream or training_stream(rng, size)
+        stream = stream or training_stream(rng, size, clean_share=config.clean_share)
         images, labels = make_batch(stream, rng, config.batch, size)
         return {"loss": loss_fn(model(images), labels)}
 
     def validate(net: MagicPointNet) -> dict:
-        figures = evaluate_set(MagicPoint(net, threshold=0.001), validation)
-        return {"map_noisy": figures["map"], "mle_noisy": figures["mle"]}
+        detector = MagicPoint(net, **SHAPES_EXTRACTION)
+        noisy, clean = evaluate_set(detector, validation), evaluate_set(detector, clean_validation)
+        return {"map_noisy": noisy["map"], "mle_noisy": noisy["mle"], "map_clean": clean["map"], "mle_clean": clean["mle"]}
 
     return train(model, config, out_dir, step_fn, validate, "map_noisy")

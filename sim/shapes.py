@@ -306,14 +306,18 @@ def render(category: str, rng: np.random.Generator, size: tuple[int, int] = (120
 
 def training_stream(rng: np.random.Generator, size: tuple[int, int] = (120, 160),
                     homography: HomographyConfig | None = HomographyConfig(),
-                    noise: bool = True) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+                    clean_share: float = 0.0) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """An endless stream of (image, corners) for training: a random category, a random homographic
-    warp, then the full photometric noise. Never the same example twice for a fresh ``rng``."""
+    warp, then the full photometric noise, except for a ``clean_share`` (0..1) of the images, which
+    stay clean. Never the same example twice for a fresh ``rng``."""
+    if not 0.0 <= clean_share <= 1.0:
+        raise ValueError(f"clean_share must lie in [0, 1], got {clean_share}")
     while True:
         image, corners = render(CATEGORIES[int(rng.integers(len(CATEGORIES)))], rng, size)
         if homography is not None:
             image, corners = warp_image_and_points(image, corners, sample_homography(rng, size, homography))
-        yield (full_noise(image, rng) if noise else image), corners
+        clean = clean_share > 0 and rng.random() < clean_share  # no draw at 0: older runs resume unchanged
+        yield (image if clean else full_noise(image, rng)), corners
 
 
 def evaluation_set(per_category: int = 1000, seed: int = 0, size: tuple[int, int] = (120, 160),

@@ -50,6 +50,19 @@ def test_training_stream_yields_noisy_warped_examples(rng):
     assert len({im.tobytes() for im in images}) == 5
 
 
+def test_training_stream_clean_share_leaves_images_clean():
+    def first(clean_share):
+        stream = shapes.training_stream(np.random.default_rng(3), homography=None, clean_share=clean_share)
+        return next(stream)[0]
+
+    rng = np.random.default_rng(3)
+    rendered, _ = shapes.render(shapes.CATEGORIES[int(rng.integers(len(shapes.CATEGORIES)))], rng)
+    assert np.array_equal(first(1.0), rendered)
+    assert not np.array_equal(first(0.0), rendered)
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        next(shapes.training_stream(np.random.default_rng(0), clean_share=1.5))
+
+
 def test_noise_magnitude_ends(rng):
     image, _ = shapes.render("checkerboards", rng)
     assert np.array_equal(noise.apply(image, rng, 0.0), image)
