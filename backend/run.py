@@ -14,10 +14,12 @@ from frontend.tracking import FRONTENDS, ClassicalTracker, MagicTracker, OracleT
 from sim.scenario import Scenario, ScenarioConfig
 
 
-def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False, refine: bool = True) -> Tracker:
+def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False, refine: bool = True,
+                 oracle_noise_px: float = 0.5) -> Tracker:
     """A front-end by name (``frontend.tracking.FRONTENDS``), with the shipped networks for "magic"
     (MagicPoint S at the evaluation threshold 0.001, at most 150 points: the oracle's budget, with
-    four grid shifts so that detections move with the image)."""
+    four grid shifts so that detections move with the image); the oracle's projections get Gaussian
+    noise of ``oracle_noise_px`` pixels."""
     if name == "magic":
         from frontend.magicpoint import MagicPoint
         from frontend.magicwarp import MagicWarp
@@ -26,7 +28,7 @@ def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = F
     if name == "classical":
         return ClassicalTracker()
     if name == "oracle":
-        return OracleTracker(seed=seed)
+        return OracleTracker(noise_px=oracle_noise_px, seed=seed)
     raise ValueError(f"unknown front-end {name!r}; expected one of {', '.join(FRONTENDS)}")
 
 

@@ -101,6 +101,10 @@ def _odometry_config(args: argparse.Namespace):
 
 
 def _tracker_options(args: argparse.Namespace) -> dict:
+    if args.frontend == "oracle":
+        if args.oracle_noise < 0:
+            raise ValueError("--oracle-noise must be at least 0")
+        return {"oracle_noise_px": args.oracle_noise}
     if args.frontend != "magic":
         return {}
     return {"iterations": args.warp_iterations, "ransac": args.ransac, "refine": not args.no_refine}
@@ -169,6 +173,8 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
     parser.add_argument("--no-refine", action="store_true",
                         help="use MagicWarp's homography as it is, without refining it by snapping and a robust fit")
     parser.add_argument("--ransac", action="store_true", help="fundamental-matrix RANSAC on MagicWarp matches")
+    parser.add_argument("--oracle-noise", type=float, default=0.5, metavar="PX",
+                        help="standard deviation (px) of the Gaussian noise on the oracle's true projections")
 
 
 def _common_training_options(parser: argparse.ArgumentParser, iterations: int, batch: int, lr: float) -> None:

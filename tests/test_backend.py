@@ -4,8 +4,8 @@ import pytest
 from backend import drift, relpose
 from backend.graph import PoseGraph
 from backend.odometry import Odometry, OdometryConfig
-from backend.run import run_frames, simulated_frames
-from frontend.tracking import OracleTracker
+from backend.run import make_tracker, run_frames, simulated_frames
+from frontend.tracking import OracleTracker, Truth
 from sim.camera import intrinsics, invert, pose, project, transform
 from sim.scenario import Scenario, ScenarioConfig
 
@@ -120,3 +120,13 @@ def test_plane_scale_needs_no_ground_truth_steps():
     assert drift.ate_rmse(estimate, truth) < 1e-3
     with pytest.raises(ValueError, match="distance"):
         Odometry(OracleTracker(), OdometryConfig(scale="plane"))
+
+
+def test_make_tracker_sets_the_oracle_pixel_noise():
+    truth = Truth(np.arange(50), np.random.default_rng(0).uniform(0, 100, (50, 2)))
+    image = np.zeros((120, 160), np.uint8)
+    exact = make_tracker("oracle", oracle_noise_px=0.0).track(image, truth)
+    np.testing.assert_array_equal(exact.points, truth.pixels[exact.ids])
+    noisy = make_tracker("oracle", oracle_noise_px=2.0).track(image, truth)
+    error = np.linalg.norm(noisy.points - truth.pixels[noisy.ids], axis=1)
+    assert 1.5 < np.median(error) < 3.5  # a 2-D Gaussian of sigma 2 has a median radius of 2.35
