@@ -66,10 +66,10 @@ def _eval_realimages(args: argparse.Namespace) -> None:
     from frontend import evaluate_detector as ev
     if args.frames < 2:
         raise ValueError("--frames must be at least 2")
-    args.out.mkdir(parents=True, exist_ok=True)
     if args.jitter < 0:
         raise ValueError("--jitter must be at least 0")
-    result = ev.static_repeatability(ev.available_detectors(threshold=0.001), args.frames, args.seed, jitter_px=args.jitter)
+    args.out.mkdir(parents=True, exist_ok=True)
+    result = ev.static_repeatability(ev.available_detectors(), args.frames, args.seed, jitter_px=args.jitter)
     _report(args.out, f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages", result,
             ev.static_lines(result), None)
 

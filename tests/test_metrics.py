@@ -1,8 +1,11 @@
 import numpy as np
 import pytest
 
+from frontend.classical import ClassicalDetector
+from frontend.evaluate_detector import _jittered
 from frontend.metrics import (average_precision, localization_error, match_detections, merge, repeatability,
                               repeatability_at_n)
+from sim.world import photo
 
 
 def test_average_precision_by_hand():
@@ -58,10 +61,6 @@ def test_point_extraction_nms_border_top_k_and_subpixel():
 
 
 def test_jittered_real_image_frames_come_with_their_true_motion():
-    from frontend.classical import ClassicalDetector
-    from frontend.evaluate_detector import _jittered
-    from sim.world import photo
-    from frontend.metrics import repeatability_at_n
     image = photo("camera", (120, 160))
     frames, homographies = _jittered([image] * 4, np.random.default_rng(0), jitter_px=3.0)
     assert len(homographies) == 3 and not np.allclose(homographies[0], np.eye(3))

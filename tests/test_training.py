@@ -18,8 +18,8 @@ def test_magicpoint_training_runs_and_resumes(tmp_path):
     assert "optimizer" not in shipped and "rng" not in shipped
     detector = MagicPoint.pretrained("S", path=tmp_path / "weights.pt")  # loads like the shipped weights
     assert detector.heatmap(np.zeros((32, 32), np.uint8)).shape == (32, 32)
+    (tmp_path / "junk.pt").write_text("junk")
     with pytest.raises(ValueError, match="not a torch checkpoint"):
-        (tmp_path / "junk.pt").write_text("junk")
         export_weights(tmp_path / "junk.pt", tmp_path / "x.pt")
 
 
