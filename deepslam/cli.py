@@ -10,15 +10,16 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
     from frontend.train_magicwarp import TrainConfig, run
     run(args.out, TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
                               motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
-                              geometry_weights=tuple(args.geometry_weights), validate_every=args.validate_every,
-                              threads=args.threads))
+                              geometry_weights=tuple(args.geometry_weights), perspective=args.perspective,
+                              validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init))
 
 
 def _train_magicpoint(args: argparse.Namespace) -> None:
     from frontend.train_magicpoint import TrainConfig, run
     run(args.out or Path(f"runs/magicpoint_{args.variant}"),
         TrainConfig(variant=args.variant, iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
-                    validate_every=args.validate_every, threads=args.threads, clean_share=args.clean_share))
+                    validate_every=args.validate_every, threads=args.threads, clean_share=args.clean_share,
+                    validation_per_category=args.validation_per_category, ema=args.ema, init=args.init))
 
 
 def _export(args: argparse.Namespace) -> None:
@@ -184,6 +185,11 @@ def _common_training_options(parser: argparse.ArgumentParser, iterations: int, b
     parser.add_argument("--seed", type=int, default=0, help="seed of the data stream and initialisation")
     parser.add_argument("--validate-every", type=int, default=500, help="steps between validations/checkpoints")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--ema", type=float, default=0.0, metavar="DECAY",
+                        help="keep a moving average of the weights with this per-step decay (e.g. 0.999); it is "
+                             "what validation scores and best.pt / export ship (default 0: off)")
+    parser.add_argument("--init", default="", metavar="WEIGHTS",
+                        help="start a new run (no last.pt in --out) from these weights: a checkpoint or shipped file")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -202,6 +208,8 @@ def build_parser() -> argparse.ArgumentParser:
                       metavar=("PLANE", "SPHERE", "CUBE", "MIXED", "HOMOGRAPHY"),
                       help="how often each kind of pair is drawn: point clouds seen by two cameras (plane, sphere, "
                            "cube, mixed scene) or image points moved by a random 2D homography")
+    warp.add_argument("--perspective", type=float, default=0.1,
+                      help="corner jitter of the 2D homography pairs at full motion, as a share of the image size")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")
@@ -209,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     _common_training_options(point, iterations=8000, batch=32, lr=1e-3)
     point.add_argument("--clean-share", type=float, default=0.0,
                        help="share (0-1) of training images left without photometric noise (default 0: all noisy)")
+    point.add_argument("--validation-per-category", type=int, default=20,
+                       help="validation images per Synthetic Shapes category (each scored clean and noisy)")
     point.set_defaults(func=_train_magicpoint)
     export = nets.add_parser("export", help="strip a training checkpoint down to the weights that ship")
     export.add_argument("checkpoint", type=Path, help="a training checkpoint, e.g. runs/magicpoint_S/best.pt")

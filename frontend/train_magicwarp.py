@@ -15,23 +15,21 @@ import torch
 
 from frontend.cells import points_to_cells_batch
 from frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
-from frontend.training import train
+from frontend.training import LoopConfig, train
 from sim.pointclouds import PairConfig, sample_pair
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(LoopConfig):
     iterations: int = 60000
     batch: int = 64
     lr: float = 3e-4
-    seed: int = 0
-    validate_every: int = 500
     motion_start: float = 0.3       # curriculum: motion scale at step 0 ...
     motion_ramp: int = 12000        # ... growing linearly to ``motion_max`` over this many steps
     motion_max: float = 1.0
     geometry_weights: tuple[float, ...] = (0.2, 0.075, 0.075, 0.15, 0.5)  # in the order of sim.pointclouds.GEOMETRIES
     max_matches: int = 128          # true matches per pair used by the loss
-    threads: int = 1
+    perspective: float = 0.1        # corner jitter of the 2D homography pairs at motion 1, of the image size
 
 
 def motion_at(config: TrainConfig, step: int) -> float:
@@ -63,6 +61,7 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
     torch.set_num_threads(config.threads)
     model = MagicWarpNet(model_config)
     pairs = PairConfig(geometry_weights=tuple(config.geometry_weights))
+    pairs = replace(pairs, homography=replace(pairs.homography, perspective=config.perspective))
     validation = validation_set(seed=config.seed + 1000)
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:

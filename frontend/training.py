@@ -3,24 +3,44 @@
 Checkpoints (``last.pt``, and ``best.pt`` by the validation score) hold the model, optimiser, step,
 config and the random generator state, so a run killed at any point resumes where its last
 checkpoint left it. Progress shows loss, throughput and the latest validation figures.
+
+Options every training shares (``LoopConfig``): a new run can start from another run's weights
+(``init``, a fine-tuning stage), and can keep an exponential moving average of the weights (``ema``),
+which is then what validation scores, ``best.pt`` keeps and ``export_weights`` ships.
 """
 from __future__ import annotations
 
 import json
 import pickle
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import torch
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Options of the training loop itself; each network's ``TrainConfig`` extends it."""
+
+    iterations: int = 1000
+    batch: int = 32
+    lr: float = 1e-3
+    seed: int = 0
+    validate_every: int = 500
+    threads: int = 1
+    ema: float = 0.0    # decay of the weights' moving average per step (0: none; 0.999 ~ the last 1000 steps)
+    init: str = ""      # weights (checkpoint or shipped file) a new run starts from; ignored when resuming
 
 
 def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int,
                     rng: np.random.Generator, config: Any, extra: dict) -> None:
-    """Write a checkpoint atomically (a killed write never leaves a broken file)."""
+    """Write a checkpoint atomically (a killed write never leaves a broken file). ``extra`` may hold
+    "ema", the averaged model's state dict."""
     state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
              "rng": rng.bit_generator.state, "config": asdict(model.config), "train_config": asdict(config), **extra}
     tmp = path.with_suffix(".tmp")
@@ -39,12 +59,35 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
     if missing:
         raise ValueError(f"{checkpoint} is not a training checkpoint (no {', '.join(sorted(missing))})")
     kept = {key: state[key] for key in ("model", "config", "step", "train_config") if key in state}
+    if "ema" in state:
+        kept["model"] = state["ema"]
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.save(kept, out)
     return kept
 
 
-def train(model: torch.nn.Module, config: Any, out_dir: Path,
+def load_weights(model: torch.nn.Module, path: Path) -> None:
+    """Load the weights of a checkpoint or shipped file into ``model`` (its averaged weights if any)."""
+    if not Path(path).exists():
+        raise FileNotFoundError(f"no weights to start from at {path}")
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    if state.get("config") != asdict(model.config):
+        raise ValueError(f"{path} holds a network of another shape ({state.get('config')}), not {asdict(model.config)}")
+    model.load_state_dict(state.get("ema", state["model"]))
+
+
+def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) -> AveragedModel | None:
+    """The exponential moving average of ``model``'s weights and BatchNorm statistics (None if off)."""
+    if not decay:
+        return None
+    ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True)
+    if state and "ema" in state:
+        ema.module.load_state_dict(state["ema"])
+        ema.n_averaged.fill_(1)
+    return ema
+
+
+def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
           step_fn: Callable[[int, np.random.Generator], dict[str, torch.Tensor]],
           validate_fn: Callable[[torch.nn.Module], dict[str, float]], score_key: str) -> dict:
     """Run ``config.iterations`` optimisation steps (resuming from ``out_dir/last.pt``).
@@ -68,6 +111,13 @@ def train(model: torch.nn.Module, config: Any, out_dir: Path,
         rng.bit_generator.state = state["rng"]
         step, best, elapsed, history = state["step"], state["best"], state["elapsed"], state["history"]
         print(f"resuming from {last} at step {step}")
+    else:
+        state = None
+        if config.init:
+            load_weights(model, Path(config.init))
+            print(f"starting from the weights of {config.init}")
+    ema = _moving_average(model, config.ema, state)
+    scored = ema.module if ema else model
     figures: dict[str, float] = history[-1] if history else {}
     bar = tqdm(total=config.iterations, initial=step, unit="it", dynamic_ncols=True)
     started = time.time() - elapsed
@@ -77,17 +127,19 @@ def train(model: torch.nn.Module, config: Any, out_dir: Path,
         optimizer.zero_grad()
         out["loss"].backward()
         optimizer.step()
+        if ema:
+            ema.update_parameters(model)
         step += 1
         bar.update(1)
         bar.set_postfix({k: f"{float(v.detach()):.4g}" for k, v in out.items()} | {k: f"{v:.3g}" for k, v in figures.items()
                                                                           if k != "step"})
         if step % config.validate_every == 0 or step == config.iterations:
-            model.eval()
+            scored.eval()
             with torch.no_grad():
-                figures = {"step": step, "wall_s": round(time.time() - started, 1), **validate_fn(model)}
+                figures = {"step": step, "wall_s": round(time.time() - started, 1), **validate_fn(scored)}
             history.append(figures)
             bar.write(json.dumps(figures))
-            extra = {"elapsed": time.time() - started, "history": history}
+            extra = {"elapsed": time.time() - started, "history": history} | ({"ema": ema.module.state_dict()} if ema else {})
             if figures[score_key] > best:
                 best = figures[score_key]
                 save_checkpoint(out_dir / "best.pt", model, optimizer, step, rng, config, {"best": best, **extra})

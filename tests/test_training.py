@@ -29,3 +29,29 @@ def test_magicwarp_training_runs_and_resumes(tmp_path):
     assert 0 <= figures["score"] <= 100
     state = torch.load(tmp_path / "last.pt", weights_only=False)
     assert state["step"] == 2 and "rng" in state
+
+
+def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
+    base = train_magicpoint.TrainConfig(iterations=1, batch=4, validate_every=1, validation_per_category=1)
+    train_magicpoint.run(tmp_path / "base", base)
+    start = torch.load(tmp_path / "base" / "last.pt", weights_only=False)["model"]
+    name = "encoder.0.0.weight"
+
+    def tuned(iterations):
+        config = train_magicpoint.TrainConfig(iterations=iterations, batch=4, validate_every=1, validation_per_category=1,
+                                              ema=0.25, init=str(tmp_path / "base" / "last.pt"), seed=1)
+        train_magicpoint.run(tmp_path / "tuned", config)
+        return torch.load(tmp_path / "tuned" / "last.pt", weights_only=False)
+
+    first = tuned(1)
+    assert not torch.equal(first["model"][name], start[name])  # it started from base and moved
+    assert torch.equal(first["ema"][name], first["model"][name])  # the average starts at the first step's weights
+    second = tuned(2)  # resumes, average included: ema = 0.25 * ema + 0.75 * weights
+    expected = 0.25 * first["ema"][name] + 0.75 * second["model"][name]
+    assert torch.allclose(second["ema"][name], expected, atol=1e-6)
+    assert not torch.allclose(second["ema"][name], second["model"][name])
+    shipped = export_weights(tmp_path / "tuned" / "last.pt", tmp_path / "weights.pt")
+    assert torch.equal(shipped["model"][name], second["ema"][name])
+    wide = train_magicpoint.TrainConfig(variant="L", iterations=1, batch=2, init=str(tmp_path / "weights.pt"))
+    with pytest.raises(ValueError, match="another shape"):
+        train_magicpoint.run(tmp_path / "wide", wide)
