@@ -7,8 +7,10 @@ from pathlib import Path
 
 
 def _train_magicwarp(args: argparse.Namespace) -> None:
+    from frontend.magicwarp import MagicWarpConfig
     from frontend.train_magicwarp import TrainConfig, run
-    run(args.out, TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
+    network = MagicWarpConfig(widths=tuple(args.widths))
+    run(args.out, model_config=network, config=TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
                               motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                               geometry_weights=tuple(args.geometry_weights), perspective=args.perspective,
                               validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init))
@@ -208,6 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
                       metavar=("PLANE", "SPHERE", "CUBE", "MIXED", "HOMOGRAPHY"),
                       help="how often each kind of pair is drawn: point clouds seen by two cameras (plane, sphere, "
                            "cube, mixed scene) or image points moved by a random 2D homography")
+    warp.add_argument("--widths", type=int, nargs="+", default=(32, 64, 64, 128),
+                      help="encoder widths, two VGG blocks per 2x2 max-pool (a new run only; a resumed run keeps its own)")
     warp.add_argument("--perspective", type=float, default=0.1,
                       help="corner jitter of the 2D homography pairs at full motion, as a share of the image size")
     warp.set_defaults(func=_train_magicwarp)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from frontend.magicwarp import MagicWarp, MagicWarpNet, refine, warp_points
+from sim.homography import image_corners
 from sim.pointsets import PointSetPair, make_pair, motion_homography, random_direction
 
 SIZE = (120, 160)
@@ -121,7 +122,43 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
             table[density][str(extra)].setdefault(method, {})[motion] = value
         if density == "medium" and extra == 0.2:
             curves[motion] = {method: reps[method].mean(0).tolist() for method in methods}
-    return {"breakdown": table, "curves": curves, "grids": {m: g.tolist() for m, g in GRIDS.items()}, "runs": runs}
+    return {"breakdown": table, "curves": curves, "grids": {m: g.tolist() for m, g in GRIDS.items()}, "runs": runs,
+            **({"motion_errors": motion_errors(warp, runs, seed)} if warp else {})}
+
+
+ERROR_MAGNITUDES = {"translation": (5.0, 10.0, 20.0), "rotation": (5.0, 10.0, 20.0), "scale": (1.05, 1.1, 1.2),
+                    "random_h": (5.0, 10.0, 20.0)}
+
+
+def motion_errors(warp: MagicWarp, runs: int = 50, seed: int = 0) -> dict:
+    """How much of each motion the raw network recovers, at medium density with 20% extra points:
+    {motion: [{"magnitude", "corner_shift_px": mean displacement of the image corners under the true
+    motion, "corner_error_px": median over runs of the mean corner distance between H and the truth}]}."""
+    corners = image_corners(SIZE)
+
+    def corner_gap(H_1: np.ndarray, H_2: np.ndarray) -> float:
+        return float(np.linalg.norm(warp_points(corners, H_1) - warp_points(corners, H_2), axis=1).mean())
+
+    result: dict = {}
+    for motion, magnitudes in ERROR_MAGNITUDES.items():
+        for magnitude in magnitudes:
+            rng = np.random.default_rng([seed, 7])
+            truths = [motion_homography(motion, magnitude, SIZE, random_direction(rng)) for _ in range(runs)]
+            pairs = [make_pair(rng, H, int(rng.integers(25, 51)), 0.2, SIZE) for H in truths]
+            estimates = warp.estimate_batch([(p.points_a, p.points_b) for p in pairs], SIZE)
+            result.setdefault(motion, []).append({
+                "magnitude": magnitude, "corner_shift_px": float(np.mean([corner_gap(H, np.eye(3)) for H in truths])),
+                "corner_error_px": float(np.median([corner_gap(E, H) for E, H in zip(estimates, truths)]))})
+    return result
+
+
+def error_lines(errors: dict) -> list[str]:
+    lines = ["raw MagicWarp, medium density, 20% extra: median corner error px / true corner shift px"]
+    for motion, rows in errors.items():
+        cells = "   ".join(f"{r['magnitude']:g}{UNITS[motion]}: {r['corner_error_px']:5.2f} / {r['corner_shift_px']:5.2f}"
+                           for r in rows)
+        lines.append(f"  {motion:<12}{cells}")
+    return lines
 
 
 def table_lines(result: dict) -> list[str]:
@@ -136,7 +173,7 @@ def table_lines(result: dict) -> list[str]:
                 paper = PAPER[(density, float(extra))][0 if method == "nearest_neighbour" else 1]
                 note = "   [" + " ".join(f"{v:.2f}" for v in paper) + "]" if method != "ransac" else ""
                 lines.append(f"  {density:<7}{float(extra):>4.0%} {values}{note}")
-    return lines
+    return lines + ([""] + error_lines(result["motion_errors"]) if "motion_errors" in result else [])
 
 
 def save_plots(result: dict, out_dir) -> list:

@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from frontend.cells import CELL
-from frontend.nets import fold_batchnorm, vgg_block
+from frontend.nets import fold_batchnorm, read_weights, vgg_block
 from frontend.points import check_image, extract_points
 
 WEIGHTS = Path(__file__).parent / "weights"
@@ -89,10 +89,9 @@ class MagicPoint:
         path = Path(path) if path else WEIGHTS / f"magicpoint_{variant}.pt"
         if not path.exists():
             raise FileNotFoundError(f"no MagicPoint weights at {path}; train them with `deepslam train magicpoint`")
-        state = torch.load(path, map_location="cpu", weights_only=False)
-        net = MagicPointNet(MagicPointConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                                for k, v in state["config"].items()}))
-        net.load_state_dict(state["model"])
+        config, weights = read_weights(path)
+        net = MagicPointNet(MagicPointConfig(**config))
+        net.load_state_dict(weights)
         return cls(net, **options)
 
     @torch.inference_mode()

@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from frontend.cells import CELL, points_to_cells_batch
-from frontend.nets import fold_batchnorm, vgg_block
+from frontend.nets import fold_batchnorm, read_weights, vgg_block
 
 WEIGHTS = Path(__file__).parent / "weights"
 
@@ -87,9 +87,9 @@ class MagicWarp:
         path = Path(path) if path else WEIGHTS / "magicwarp.pt"
         if not path.exists():
             raise FileNotFoundError(f"no MagicWarp weights at {path}; train them with `deepslam train magicwarp`")
-        state = torch.load(path, map_location="cpu", weights_only=False)
-        net = MagicWarpNet(MagicWarpConfig(**state["config"]))
-        net.load_state_dict(state["model"])
+        config, weights = read_weights(path)
+        net = MagicWarpNet(MagicWarpConfig(**config))
+        net.load_state_dict(weights)
         return cls(net)
 
     @torch.inference_mode()

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import torch
 from torch import nn
@@ -39,3 +40,11 @@ def fold_batchnorm(model: nn.Module) -> nn.Module:
 def parameter_bytes(model: nn.Module) -> int:
     """Size of the model's parameters and buffers in float32 bytes."""
     return sum(t.numel() * 4 for t in list(model.parameters()) + list(model.buffers()) if t.is_floating_point())
+
+
+def read_weights(path: Path) -> tuple[dict, dict]:
+    """(network config, state dict) of shipped weights or a training checkpoint; a checkpoint's moving
+    average of the weights (``--ema``) when it has one, as that is what it was validated on."""
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    config = {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()}
+    return config, state.get("ema", state["model"])

@@ -15,6 +15,7 @@ import torch
 
 from frontend.cells import points_to_cells_batch
 from frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
+from frontend.nets import read_weights
 from frontend.training import LoopConfig, train
 from sim.pointclouds import PairConfig, sample_pair
 
@@ -55,10 +56,13 @@ def make_batch(rng: np.random.Generator, config: TrainConfig, pairs: PairConfig)
 
 
 def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicWarpConfig = MagicWarpConfig()) -> dict:
-    """Train (or resume) into ``out_dir``; returns the last validation figures."""
+    """Train (or resume) into ``out_dir``; returns the last validation figures. A resumed run keeps
+    the network shape of its checkpoint."""
     from frontend.evaluate_warp import validation_figures, validation_set
 
     torch.set_num_threads(config.threads)
+    if (out_dir / "last.pt").exists():
+        model_config = MagicWarpConfig(**read_weights(out_dir / "last.pt")[0])
     model = MagicWarpNet(model_config)
     pairs = PairConfig(geometry_weights=tuple(config.geometry_weights))
     pairs = replace(pairs, homography=replace(pairs.homography, perspective=config.perspective))

@@ -22,6 +22,8 @@ import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
 
+from frontend.nets import read_weights
+
 
 @dataclass(frozen=True)
 class LoopConfig:
@@ -70,10 +72,10 @@ def load_weights(model: torch.nn.Module, path: Path) -> None:
     """Load the weights of a checkpoint or shipped file into ``model`` (its averaged weights if any)."""
     if not Path(path).exists():
         raise FileNotFoundError(f"no weights to start from at {path}")
-    state = torch.load(path, map_location="cpu", weights_only=False)
-    if state.get("config") != asdict(model.config):
-        raise ValueError(f"{path} holds a network of another shape ({state.get('config')}), not {asdict(model.config)}")
-    model.load_state_dict(state.get("ema", state["model"]))
+    config, weights = read_weights(path)
+    if config != asdict(model.config):
+        raise ValueError(f"{path} holds a network of another shape ({config}), not {asdict(model.config)}")
+    model.load_state_dict(weights)
 
 
 def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) -> AveragedModel | None:

@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -141,3 +142,31 @@ def test_refine_recovers_a_homography_from_a_rough_guess(rng):
     assert refined[2, 2] == 1.0
     assert np.abs(warp_points(a, refined) - warp_points(a, true_H)).max() < 1e-3
     assert refine(a[:5], b[:5], rough) is rough  # too few pairs: the guess stands
+
+
+def test_motion_errors_measure_what_the_warp_recovers():
+    from frontend.evaluate_warp import ERROR_MAGNITUDES, motion_errors
+    from sim.homography import normalize
+
+    class Identity:  # recovers nothing: its corner error is the whole corner shift
+        def estimate_batch(self, pairs, size):
+            return np.stack([np.eye(3)] * len(pairs))
+
+    class Fitted:  # RANSAC on nearest-neighbour guesses: exact for a small translation
+        def estimate_batch(self, pairs, size):
+            fits = []
+            for a, b in pairs:
+                nearest = b[np.argmin(np.linalg.norm(a[:, None] - b[None], axis=2), axis=1)]
+                fits.append(normalize(cv2.findHomography(a, nearest, cv2.RANSAC, 0.5)[0]))
+            return np.stack(fits)
+
+    nothing = motion_errors(Identity(), runs=3)
+    assert list(nothing) == list(ERROR_MAGNITUDES)
+    for motion, rows in nothing.items():
+        for row in rows:  # the same shift in every run, except random_h's random corner directions
+            assert row["corner_shift_px"] > 0
+            assert np.isclose(row["corner_error_px"], row["corner_shift_px"], rtol=0.5 if motion == "random_h" else 1e-9)
+    assert nothing["translation"][1]["corner_shift_px"] == pytest.approx(10.0)
+    small = motion_errors(Fitted(), runs=3)["translation"][0]  # 5 px: nearest neighbours are mostly the truth
+    assert small["corner_error_px"] < 0.5 < small["corner_shift_px"]
+
