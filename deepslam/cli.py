@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -12,7 +13,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
     network = MagicWarpConfig(widths=tuple(args.widths))
     run(args.out, model_config=network, config=TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
                               motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
-                              geometry_weights=tuple(args.geometry_weights), perspective=args.perspective,
+                              geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
                               validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init))
 
 
@@ -212,8 +213,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "cube, mixed scene) or image points moved by a random 2D homography")
     warp.add_argument("--widths", type=int, nargs="+", default=(32, 64, 64, 128),
                       help="encoder widths, two VGG blocks per 2x2 max-pool (a new run only; a resumed run keeps its own)")
-    warp.add_argument("--perspective", type=float, default=0.1,
-                      help="corner jitter of the 2D homography pairs at full motion, as a share of the image size")
+    warp.add_argument("--homography", type=float, nargs=4, default=(0.3, math.pi / 4, 0.35, 0.1),
+                      metavar=("TRANSLATION", "ROTATION", "ZOOM", "JITTER"),
+                      help="ranges of the 2D homography pairs at full motion: translation and corner jitter as shares "
+                           "of the image size, rotation in radians, zoom as +- a share")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")

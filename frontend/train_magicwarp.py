@@ -17,6 +17,7 @@ from frontend.cells import points_to_cells_batch
 from frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
 from frontend.nets import read_weights
 from frontend.training import LoopConfig, train
+from sim.homography import HomographyConfig
 from sim.pointclouds import PairConfig, sample_pair
 
 
@@ -30,7 +31,8 @@ class TrainConfig(LoopConfig):
     motion_max: float = 1.0
     geometry_weights: tuple[float, ...] = (0.2, 0.075, 0.075, 0.15, 0.5)  # in the order of sim.pointclouds.GEOMETRIES
     max_matches: int = 128          # true matches per pair used by the loss
-    perspective: float = 0.1        # corner jitter of the 2D homography pairs at motion 1, of the image size
+    homography: tuple[float, float, float, float] = (0.3, np.pi / 4, 0.35, 0.1)  # 2D pairs at motion 1: translation
+    # (share of the image size), rotation (rad), zoom (+-share), corner jitter (share of the image size)
 
 
 def motion_at(config: TrainConfig, step: int) -> float:
@@ -65,7 +67,7 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
         model_config = MagicWarpConfig(**read_weights(out_dir / "last.pt")[0])
     model = MagicWarpNet(model_config)
     pairs = PairConfig(geometry_weights=tuple(config.geometry_weights))
-    pairs = replace(pairs, homography=replace(pairs.homography, perspective=config.perspective))
+    pairs = replace(pairs, homography=HomographyConfig(*config.homography))
     validation = validation_set(seed=config.seed + 1000)
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:
