@@ -10,11 +10,11 @@ from pathlib import Path
 def _train_magicwarp(args: argparse.Namespace) -> None:
     from frontend.magicwarp import MagicWarpConfig
     from frontend.train_magicwarp import TrainConfig, run
-    network = MagicWarpConfig(widths=tuple(args.widths))
-    run(args.out, model_config=network, config=TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
-                              motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
-                              geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
-                              validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init))
+    config = TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
+                         motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
+                         geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
+                         validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
+    run(args.out, config, MagicWarpConfig(widths=tuple(args.widths)))
 
 
 def _train_magicpoint(args: argparse.Namespace) -> None:

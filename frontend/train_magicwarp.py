@@ -66,8 +66,7 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
     if (out_dir / "last.pt").exists():
         model_config = MagicWarpConfig(**read_weights(out_dir / "last.pt")[0])
     model = MagicWarpNet(model_config)
-    pairs = PairConfig(geometry_weights=tuple(config.geometry_weights))
-    pairs = replace(pairs, homography=HomographyConfig(*config.homography))
+    pairs = PairConfig(geometry_weights=tuple(config.geometry_weights), homography=HomographyConfig(*config.homography))
     validation = validation_set(seed=config.seed + 1000)
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:

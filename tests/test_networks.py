@@ -169,4 +169,3 @@ def test_motion_errors_measure_what_the_warp_recovers():
     assert nothing["translation"][1]["corner_shift_px"] == pytest.approx(10.0)
     small = motion_errors(Fitted(), runs=3)["translation"][0]  # 5 px: nearest neighbours are mostly the truth
     assert small["corner_error_px"] < 0.5 < small["corner_shift_px"]
-
