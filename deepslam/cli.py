@@ -14,7 +14,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
                          motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
-    run(args.out, config, MagicWarpConfig(widths=tuple(args.widths)))
+    run(args.out, config, MagicWarpConfig(widths=tuple(args.widths), hidden=args.hidden))
 
 
 def _train_magicpoint(args: argparse.Namespace) -> None:
@@ -192,7 +192,9 @@ def _common_training_options(parser: argparse.ArgumentParser, iterations: int, b
                         help="keep a moving average of the weights with this per-step decay (e.g. 0.999); it is "
                              "what validation scores and best.pt / export ship (default 0: off)")
     parser.add_argument("--init", default="", metavar="WEIGHTS",
-                        help="start a new run (no last.pt in --out) from these weights: a checkpoint or shipped file")
+                        help="start a new run (no last.pt in --out) from these weights: a checkpoint or shipped file; "
+                             "weights of a narrower network (same layers, fewer units) are embedded into the wider one "
+                             "so that it starts from the same function")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -213,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "cube, mixed scene) or image points moved by a random 2D homography")
     warp.add_argument("--widths", type=int, nargs="+", default=(32, 64, 64, 128),
                       help="encoder widths, two VGG blocks per 2x2 max-pool (a new run only; a resumed run keeps its own)")
+    warp.add_argument("--hidden", type=int, default=256,
+                      help="width of the hidden fully connected layer (a new run only; a resumed run keeps its own)")
     warp.add_argument("--homography", type=float, nargs=4, default=(0.3, math.pi / 4, 0.35, 0.1),
                       metavar=("TRANSLATION", "ROTATION", "ZOOM", "JITTER"),
                       help="ranges of the 2D homography pairs at full motion: translation and corner jitter as shares "

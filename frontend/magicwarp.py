@@ -24,6 +24,10 @@ class MagicWarpConfig:
     pooled: tuple[int, int] = (3, 5)
     hidden: int = 256
 
+    def __post_init__(self):
+        if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:
+            raise ValueError(f"MagicWarp needs positive widths, pooled grid and hidden width, got {self}")
+
 
 class MagicWarpNet(nn.Module):
     """(B, 130, Hc, Wc) concatenated cell tensors -> (B, 3, 3) homography in normalised coordinates

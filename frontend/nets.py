@@ -48,3 +48,25 @@ def read_weights(path: Path) -> tuple[dict, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
     config = {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()}
     return config, state.get("ema", state["model"])
+
+
+def embed_weights(model: nn.Module, weights: dict) -> None:
+    """Load the state dict of a narrower network of the same layout (wider layers only) into
+    ``model`` so that it computes the same function.
+
+    Every tensor is copied into the leading slice of the wider one; old units get zero weights from
+    the new inputs, new units keep their fresh initialisation, so they start to learn without
+    changing the output. Holds for chains of convolutions, BatchNorm, pooling and linear layers with
+    channel-major flattening. Raises ValueError if a tensor is missing or smaller in ``model``.
+    """
+    target = model.state_dict()
+    if set(target) != set(weights):
+        raise ValueError("the weights have other layers than the network")
+    for name, old in weights.items():
+        new = target[name]
+        if old.dim() != new.dim() or any(o > n for o, n in zip(old.shape, new.shape)):
+            raise ValueError(f"{name}: {tuple(old.shape)} does not fit into {tuple(new.shape)}")
+        if old.dim() >= 2:
+            new[: old.shape[0], old.shape[1]:] = 0
+        new[tuple(slice(0, size) for size in old.shape)] = old
+    model.load_state_dict(target)

@@ -22,7 +22,9 @@ import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
 
-from frontend.nets import read_weights
+from frontend.nets import embed_weights, read_weights
+
+WIDENABLE = {"widths", "hidden", "head"}  # network config fields --init may widen (same layers, more units)
 
 
 @dataclass(frozen=True)
@@ -69,13 +71,23 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
 
 
 def load_weights(model: torch.nn.Module, path: Path) -> None:
-    """Load the weights of a checkpoint or shipped file into ``model`` (its averaged weights if any)."""
+    """Load the weights of a checkpoint or shipped file into ``model`` (its averaged weights if any).
+    Weights of a network that differs only by narrower ``widths`` / ``hidden`` layers are embedded
+    (``frontend.nets.embed_weights``): the wider network starts from the same function."""
     if not Path(path).exists():
         raise FileNotFoundError(f"no weights to start from at {path}")
     config, weights = read_weights(path)
-    if config != asdict(model.config):
-        raise ValueError(f"{path} holds a network of another shape ({config}), not {asdict(model.config)}")
-    model.load_state_dict(weights)
+    wanted = asdict(model.config)
+    if config == wanted:
+        model.load_state_dict(weights)
+        return
+    layout = {key for key in wanted if config.get(key) != wanted[key]} <= WIDENABLE
+    try:
+        if not layout:
+            raise ValueError("its layout differs")
+        embed_weights(model, weights)
+    except ValueError as error:
+        raise ValueError(f"{path} holds a network of another shape ({config}), not {wanted}: {error}") from None
 
 
 def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) -> AveragedModel | None:
@@ -106,6 +118,9 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
     last = out_dir / "last.pt"
     if last.exists():
         state = torch.load(last, map_location="cpu", weights_only=False)
+        if state["config"] != asdict(model.config):
+            raise ValueError(f"{last} holds a network of another shape ({state['config']}), not "
+                             f"{asdict(model.config)}: resume it with its own options, or train into another folder")
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         for group in optimizer.param_groups:  # resuming with another --lr applies it (a manual schedule)

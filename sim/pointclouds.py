@@ -6,7 +6,9 @@ translation, rotation about random axes). Pairs with less than ``min_overlap`` o
 in B are redrawn. Occlusion in camera B is not modelled.
 
 A fifth kind, ``homography``, moves random image points by a random 2D homography (translation,
-in-plane rotation, zoom and corner jitter at once): the motions of the breakdown evaluation.
+in-plane rotation, zoom and corner jitter at once): the motions of the breakdown evaluation. Its
+points, and the spurious points of every kind, are drawn as a detector reports them, at most one per
+8x8 cell (``sim.pointsets.detector_points``).
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import numpy as np
 
 from sim.camera import intrinsics, invert, pose, project, transform
 from sim.homography import HomographyConfig, inside, sample_homography, warp_points
+from sim.pointsets import detector_points
 from sim.trajectories import random_walk
 
 GEOMETRIES = ("plane", "sphere", "cube", "mixed", "homography")
@@ -132,12 +135,11 @@ def _camera_pair(rng: np.random.Generator, config: PairConfig, kind: str, count:
 
 def _homography_pair(rng: np.random.Generator, config: PairConfig, count: int):
     """Random points of image A (N, 2), moved by a random homography into B, and which stay in B."""
-    h, w = config.size
     ranges = config.homography
     amount = config.motion * rng.uniform()
     H = sample_homography(rng, config.size, HomographyConfig(ranges.translation * amount, ranges.rotation * amount,
                                                              ranges.scale * amount, ranges.perspective * amount))
-    uv_a = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (count, 2))
+    uv_a = detector_points(rng, count, config.size)
     uv_b = warp_points(uv_a, H)
     return uv_a, uv_b, inside(uv_b, config.size)
 
@@ -155,10 +157,9 @@ def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray
     keep_b &= ~(broken & ~side)
     keep_a &= rng.random(len(uv_a)) >= strength * config.point_dropout
     keep_b &= rng.random(len(uv_a)) >= strength * config.point_dropout
-    h, w = size
 
     def with_extra(points):
-        extra = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (int(len(points) * rng.uniform(0, config.max_extra)), 2))
+        extra = detector_points(rng, int(len(points) * rng.uniform(0, config.max_extra)), size)
         merged = np.vstack([points, extra])
         return merged[rng.permutation(len(merged))]
 

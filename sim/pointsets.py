@@ -1,7 +1,9 @@
 """2D point-set pairs under the paper's four test motions (the MagicWarp breakdown experiment).
 
 Random points in image A move by a ground-truth homography into image B; points that leave B are
-dropped and spurious random points are added to B. Every motion is interpolated from the identity
+dropped and spurious random points are added to B. Random points are drawn as a detector reports
+them (``detector_points``): at most one per 8x8 cell, since MagicPoint's cell output (and
+MagicWarp's input) holds one point per cell. Every motion is interpolated from the identity
 by its magnitude: translation to the right (px), in-plane rotation about the centre (degrees),
 zoom-in scale (factor), and a random homography whose mean corner displacement is the magnitude (px).
 """
@@ -44,6 +46,17 @@ def random_direction(rng: np.random.Generator) -> np.ndarray:
     return pattern / np.linalg.norm(pattern, axis=1).mean()
 
 
+def detector_points(rng: np.random.Generator, count: int, size: tuple[int, int], cell: int = 8) -> np.ndarray:
+    """``count`` random points (count, 2) in an image of ``size`` (H, W), at most one per
+    ``cell`` x ``cell`` cell (distinct cells, each point uniform in its cell's pixels)."""
+    h, w = size
+    rows, cols = h // cell, w // cell
+    if not 0 <= count <= rows * cols:
+        raise ValueError(f"{count} points do not fit one per {cell}x{cell} cell of a {h}x{w} image ({rows * cols} cells)")
+    row, col = np.divmod(rng.choice(rows * cols, count, replace=False), cols)
+    return np.c_[col, row] * cell + rng.uniform(-0.5, cell - 0.5, (count, 2))
+
+
 @dataclass
 class PointSetPair:
     """points_a (N1, 2); points_b (N2, 2); true_index (N1,) index into points_b of each A point's
@@ -57,11 +70,10 @@ class PointSetPair:
 def make_pair(rng: np.random.Generator, H: np.ndarray, count: int, extra: float,
               size: tuple[int, int] = (120, 160)) -> PointSetPair:
     """``count`` random points in A warped by ``H`` into B, plus ``extra * count`` spurious B points."""
-    h, w = size
-    points_a = rng.uniform([0, 0], [w - 1, h - 1], (count, 2))
+    points_a = detector_points(rng, count, size)
     moved = warp_points(points_a, H)
     stays = inside(moved, size)
-    spurious = rng.uniform([0, 0], [w - 1, h - 1], (int(round(extra * count)), 2))
+    spurious = detector_points(rng, int(round(extra * count)), size)
     points_b = np.vstack([moved[stays], spurious])
     order = rng.permutation(len(points_b))
     true_index = np.full(count, -1)

@@ -3,6 +3,7 @@ import pytest
 
 from frontend.classical import ClassicalDetector
 from frontend.evaluate_detector import _jittered
+from frontend.evaluate_warp import GRIDS, PAPER, short_of_paper, table_lines
 from frontend.metrics import (average_precision, localization_error, match_detections, merge, repeatability,
                               repeatability_at_n)
 from sim.world import photo
@@ -68,3 +69,14 @@ def test_jittered_real_image_frames_come_with_their_true_motion():
     true_motion, _ = repeatability_at_n(list(zip(points, points[1:], homographies)), image.shape)
     no_motion, _ = repeatability_at_n([(a, b, np.eye(3)) for a, b in zip(points, points[1:])], image.shape)
     assert true_motion > 0.8 > no_motion + 0.2
+
+
+def test_breakdown_cells_are_checked_against_the_papers_magicwarp_column():
+    def table(shift):
+        return {density: {str(extra): {"magicwarp": {m: v + shift for m, v in zip(GRIDS, mw)}}
+                          for (d, extra), (_, mw) in PAPER.items() if d == density} for density in ("low", "medium", "high")}
+    assert short_of_paper({"breakdown": table(0.0)}, "magicwarp") == []
+    result = {"breakdown": table(0.0)}
+    result["breakdown"]["medium"]["0.2"]["magicwarp"]["random_h"] = 17.71
+    assert short_of_paper(result, "magicwarp") == ["medium 20% random_h 17.71<24.84"]
+    assert "35 of 36 cells at or above the paper; short: medium 20% random_h 17.71<24.84" in "\n".join(table_lines(result))

@@ -1,10 +1,11 @@
 import numpy as np
 import pytest
 
+from frontend.cells import points_to_cells
 from sim import noise, shapes
 from sim.homography import HomographyConfig, sample_homography, warp_image_and_points, warp_points
 from sim.pointclouds import GEOMETRIES, PairConfig, sample_pair
-from sim.pointsets import make_pair, motion_homography, random_direction
+from sim.pointsets import detector_points, make_pair, motion_homography, random_direction
 
 
 def test_ten_categories_render_with_corners_inside_the_image(rng):
@@ -122,6 +123,17 @@ def test_breakdown_motions_and_pairs(rng):
     partners = pair.true_index >= 0
     np.testing.assert_allclose(pair.points_b[pair.true_index[partners]], warp_points(pair.points_a[partners], H))
     assert len(pair.points_b) == partners.sum() + 8
+
+
+def test_detector_points_fill_distinct_cells_as_the_cell_encoding_sees_them(rng):
+    size = (120, 160)
+    points = detector_points(rng, 300, size)  # every cell of a 120x160 image
+    cells = points_to_cells(points, size)
+    assert points.shape == (300, 2) and not cells[64].any() and cells[:64].max() == 1.0
+    np.testing.assert_array_equal(detector_points(np.random.default_rng(5), 40, size),
+                                  detector_points(np.random.default_rng(5), 40, size))
+    with pytest.raises(ValueError, match="301 points do not fit"):
+        detector_points(rng, 301, size)
 
 
 def test_look_at_keeps_world_up_at_the_top_of_the_image():

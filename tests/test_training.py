@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from frontend import MagicPoint, train_magicpoint, train_magicwarp
-from frontend.training import export_weights
+from frontend.magicwarp import MagicWarpConfig, MagicWarpNet
+from frontend.training import export_weights, load_weights
 
 
 def test_magicpoint_training_runs_and_resumes(tmp_path):
@@ -14,6 +15,9 @@ def test_magicpoint_training_runs_and_resumes(tmp_path):
     longer = train_magicpoint.TrainConfig(iterations=3, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path, longer)
     assert torch.load(tmp_path / "last.pt", weights_only=False)["step"] == 3
+    other_variant = train_magicpoint.TrainConfig(variant="L", iterations=4, batch=4, validation_per_category=1)
+    with pytest.raises(ValueError, match="another shape.*resume it with its own options"):
+        train_magicpoint.run(tmp_path, other_variant)
     shipped = export_weights(tmp_path / "last.pt", tmp_path / "weights.pt")
     assert "optimizer" not in shipped and "rng" not in shipped
     detector = MagicPoint.pretrained("S", path=tmp_path / "weights.pt")  # loads like the shipped weights
@@ -52,6 +56,21 @@ def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
     assert not torch.allclose(second["ema"][name], second["model"][name])
     shipped = export_weights(tmp_path / "tuned" / "last.pt", tmp_path / "weights.pt")
     assert torch.equal(shipped["model"][name], second["ema"][name])
-    wide = train_magicpoint.TrainConfig(variant="L", iterations=1, batch=2, init=str(tmp_path / "weights.pt"))
-    with pytest.raises(ValueError, match="another shape"):
-        train_magicpoint.run(tmp_path / "wide", wide)
+
+
+def test_init_widens_a_narrower_network_without_changing_what_it_computes(tmp_path):
+    narrow, wide = MagicWarpConfig(widths=(8, 8, 16, 16), hidden=16), MagicWarpConfig(widths=(8, 16, 16, 32), hidden=32)
+    train_magicwarp.run(tmp_path / "narrow", train_magicwarp.TrainConfig(iterations=1, batch=4, validate_every=1), narrow)
+    weights = tmp_path / "narrow" / "last.pt"
+    cells = (torch.rand(3, 130, 15, 20) < 0.1).float()
+    start, widened = MagicWarpNet(narrow).eval(), MagicWarpNet(wide).eval()
+    load_weights(start, weights)
+    load_weights(widened, weights)
+    assert torch.allclose(widened(cells), start(cells), atol=1e-5)
+    assert sum(p.numel() for p in widened.parameters()) > sum(p.numel() for p in start.parameters())
+    with pytest.raises(ValueError, match="another shape"):  # narrowing cannot keep the function
+        load_weights(MagicWarpNet(MagicWarpConfig(widths=(8, 8, 8, 16), hidden=16)), weights)
+    with pytest.raises(ValueError, match="positive widths"):
+        MagicWarpConfig(widths=(8, 0))
+    with pytest.raises(ValueError, match="another shape"):  # nor can another layout
+        load_weights(MagicWarpNet(MagicWarpConfig(widths=(8, 8, 16, 16), pooled=(2, 2), hidden=16)), weights)
