@@ -15,7 +15,7 @@ from sim.scenario import Scenario, ScenarioConfig
 
 
 def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False, refine: bool = True,
-                 oracle_noise_px: float = 0.5) -> Tracker:
+                 carry: bool = True, oracle_noise_px: float = 0.5) -> Tracker:
     """A front-end by name (``frontend.tracking.FRONTENDS``), with the shipped networks for "magic"
     (MagicPoint S at the evaluation threshold 0.001, at most 150 points: the oracle's budget, with
     four grid shifts so that detections move with the image); the oracle's projections get Gaussian
@@ -24,7 +24,8 @@ def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = F
         from frontend.magicpoint import MagicPoint
         from frontend.magicwarp import MagicWarp
         detector = MagicPoint.pretrained("S", threshold=0.001, top_k=150, grid_shifts=4, subpixel=True)
-        return MagicTracker(detector, MagicWarp.pretrained(), iterations=iterations, ransac=ransac, refine=refine)
+        return MagicTracker(detector, MagicWarp.pretrained(), iterations=iterations, ransac=ransac, refine=refine,
+                            carry=carry)
     if name == "classical":
         return ClassicalTracker()
     if name == "oracle":
@@ -156,7 +157,7 @@ def bench_pipeline(frames: int = 60, seed: int = 0) -> dict[str, float]:
 
 
 def pipeline_matrix(worlds: tuple[str, ...] = ("plane", "room"), frontends: tuple[str, ...] = ("oracle", "magic", "classical"),
-                    noises: tuple[float, ...] = (0.0, 1.0), frames: int = 60, seeds: tuple[int, ...] = (0, 1, 2),
+                    noises: tuple[float, ...] = (0.0, 1.0), frames: int = 60, seeds: tuple[int, ...] = tuple(range(6)),
                     scale: str = "gt", trajectory: str = "circle") -> list[dict]:
     """Drift of every world x front-end x noise combination, averaged over ``seeds``."""
     rows = []

@@ -111,7 +111,8 @@ def _tracker_options(args: argparse.Namespace) -> dict:
         return {"oracle_noise_px": args.oracle_noise}
     if args.frontend != "magic":
         return {}
-    return {"iterations": args.warp_iterations, "ransac": args.ransac, "refine": not args.no_refine}
+    return {"iterations": args.warp_iterations, "ransac": args.ransac, "refine": not args.no_refine,
+            "carry": not args.no_carry}
 
 
 def _print_drift(drift: dict, scale: str) -> None:
@@ -176,6 +177,9 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
     parser.add_argument("--warp-iterations", type=int, default=1, help="MagicWarp iterations (magic front-end)")
     parser.add_argument("--no-refine", action="store_true",
                         help="use MagicWarp's homography as it is, without refining it by snapping and a robust fit")
+    parser.add_argument("--no-carry", action="store_true",
+                        help="report only detected points; by default a track the detector misses is still reported "
+                             "where MagicWarp's homography carries it, for up to 20 frames")
     parser.add_argument("--ransac", action="store_true", help="fundamental-matrix RANSAC on MagicWarp matches")
     parser.add_argument("--oracle-noise", type=float, default=0.5, metavar="PX",
                         help="standard deviation (px) of the Gaussian noise on the oracle's true projections")
@@ -296,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
                         default=["oracle", "magic", "classical"], help="front-ends")
     matrix.add_argument("--noise", nargs="+", type=float, default=[0.0, 1.0], help="noise magnitudes s")
     matrix.add_argument("--frames", type=int, default=60, help="frames per run")
-    matrix.add_argument("--seeds", type=int, default=3, help="runs per cell (seeds 0..N-1)")
+    matrix.add_argument("--seeds", type=int, default=6, help="runs per cell (seeds 0..N-1; the worlds differ by seed: textures, layout)")
     matrix.add_argument("--scale", choices=("gt", "plane"), default="gt", help="scale method")
     matrix.add_argument("--trajectory", choices=("circle", "figure8", "line", "random"), default="circle", help="camera path")
     matrix.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")

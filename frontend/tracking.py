@@ -2,7 +2,7 @@
 
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
   snapping and a robust homography fit), nearest-neighbour snapping (optionally a fundamental-matrix
-  RANSAC on top).
+  RANSAC on top); a track the detector misses is carried on by that homography.
 - ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked), replenished when tracks run low: what a practitioner would build.
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
@@ -80,15 +80,18 @@ class MagicTracker(Tracker):
     """MagicPoint + MagicWarp tracking. MagicWarp estimates H between consecutive point images;
     every live track's position is carried by it and snapped to the nearest new detection within
     ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
-    frames. ``iterations`` applies MagicWarp iteratively; ``refine`` polishes its H by snapping and a
-    robust homography fit (``frontend.magicwarp.refine``); ``ransac`` adds a fundamental-matrix check."""
+    frames; with ``carry`` it is also reported there (score 0), so that a keyframe keeps its tracks
+    through the detector's misses. ``iterations`` applies MagicWarp iteratively; ``refine`` polishes
+    its H by snapping and a robust homography fit (``frontend.magicwarp.refine``); ``ransac`` adds a
+    fundamental-matrix check."""
 
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
-                 ransac: bool = False, max_age: int = 20, refine: bool = True):
+                 ransac: bool = False, max_age: int = 20, refine: bool = True, carry: bool = True):
         super().__init__()
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
-        self.refine = refine
+        self.refine, self.carry = refine, carry
+        self.detections = np.zeros((0, 2))            # the previous frame's detections, MagicWarp's input
         self.last_homography = np.eye(3)
         self.live = np.zeros((0, 2))                 # positions of live tracks (detected or carried)
         self.live_ids = np.zeros(0, np.int64)
@@ -102,9 +105,9 @@ class MagicTracker(Tracker):
         points = detections[:, :2].astype(np.float64)
         pairs = np.zeros((0, 2), np.int64)
         if len(self.live) and len(points):
-            if len(self.previous.points):
-                H = self.warp.estimate(self.previous.points, points, image.shape, self.iterations)
-                self.last_homography = refine(self.previous.points, points, H) if self.refine else H
+            if len(self.detections):
+                H = self.warp.estimate(self.detections, points, image.shape, self.iterations)
+                self.last_homography = refine(self.detections, points, H) if self.refine else H
             warped = time.perf_counter()
             self.live = warp_points(self.live, self.last_homography)
             pairs = match(self.live, points, np.eye(3), self.max_dist)
@@ -119,10 +122,14 @@ class MagicTracker(Tracker):
         missed = np.ones(len(self.live), bool)
         missed[pairs[:, 0]] = False
         keep = missed & (self.live_age < self.max_age)
+        h, w = image.shape
+        reported = keep & self.carry & np.all((self.live >= 0) & (self.live <= [w - 1, h - 1]), axis=1)
+        self.previous = Tracks(np.vstack([points, self.live[reported]]), np.concatenate([ids, self.live_ids[reported]]),
+                               np.concatenate([detections[:, 2], np.zeros(reported.sum())]).astype(np.float64))
+        self.detections = points
         self.live = np.vstack([points, self.live[keep]])
         self.live_ids = np.concatenate([ids, self.live_ids[keep]])
         self.live_age = np.concatenate([np.zeros(len(points), np.int64), self.live_age[keep] + 1])
-        self.previous = Tracks(points, ids, detections[:, 2].astype(np.float64))
         return self.previous
 
 

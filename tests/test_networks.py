@@ -169,3 +169,35 @@ def test_motion_errors_measure_what_the_warp_recovers():
     assert nothing["translation"][1]["corner_shift_px"] == pytest.approx(10.0)
     small = motion_errors(Fitted(), runs=3)["translation"][0]  # 5 px: nearest neighbours are mostly the truth
     assert small["corner_error_px"] < 0.5 < small["corner_shift_px"]
+
+
+class _ScriptedDetector:
+    """Stands in for MagicPoint: returns the given (x, y) points of each frame in turn, score 1."""
+
+    def __init__(self, frames):
+        self.frames = iter(frames)
+
+    def detect(self, image):
+        points = next(self.frames)
+        return np.c_[points, np.ones(len(points))]
+
+
+@pytest.mark.parametrize("carry", [True, False])
+def test_magic_tracker_carries_a_missed_point_and_picks_it_up_again(carry):
+    from frontend.tracking import MagicTracker
+    from sim.pointsets import detector_points
+    points = detector_points(np.random.default_rng(0), 60, (120, 160))
+    points = points[(points > 8).all(1) & (points < [150, 110]).all(1)]
+    shift = np.array([2.0, 1.0])
+    frames = [points, np.delete(points + shift, 0, axis=0), points + 2 * shift]  # frame 2 misses point 0
+    tracker = MagicTracker(_ScriptedDetector(frames), MagicWarp.pretrained(), carry=carry)
+    image = np.zeros((120, 160), np.uint8)
+    first, second, third = (tracker.track(image) for _ in frames)
+    missed = first.ids[0]
+    assert np.array_equal(np.sort(third.ids), np.sort(first.ids))  # every track, the missed one too, goes on
+    np.testing.assert_allclose(third.points[third.ids == missed][0], points[0] + 2 * shift)
+    if carry:  # reported where the refined homography carries it, marked as not detected
+        assert len(second.ids) == len(points) and second.scores[second.ids == missed] == 0
+        np.testing.assert_allclose(second.points[second.ids == missed][0], points[0] + shift, atol=1e-3)
+    else:
+        assert missed not in second.ids and len(second.ids) == len(points) - 1
