@@ -53,6 +53,11 @@ class OdometryConfig:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(relpose.METHODS)}")
         if self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; expected one of {', '.join(SCALES)}")
+        if not (self.keyframe_parallax > 0 and self.min_parallax >= 0 and self.min_shared_tracks >= relpose.MIN_MATCHES):
+            raise ValueError(f"keyframe parallax must be positive, min parallax at least 0 and min shared tracks at least "
+                             f"{relpose.MIN_MATCHES}, got {self.keyframe_parallax}, {self.min_parallax}, {self.min_shared_tracks}")
+        if self.plane_distance is not None and not self.plane_distance > 0:
+            raise ValueError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
 
 
 @dataclass

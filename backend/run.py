@@ -87,9 +87,15 @@ def simulate(scenario_config: ScenarioConfig, frontend: str, odometry_config: Od
 
 def replay(log: str | Path, frontend: str, odometry_config: OdometryConfig, out: str | Path,
            metadata: dict | None = None, progress: bool = True, **tracker_options) -> dict:
-    """Feed a log's images (camera info, ground truth) through the pipeline again into a new log."""
+    """Feed a log's images (camera info, ground truth) through the pipeline again into a new log
+    (never over the log it reads)."""
+    from logs.reader import check_log
+
     if frontend == "oracle":
         raise ValueError("the oracle front-end needs the simulator's landmarks, which logs do not hold")
+    check_log(log)
+    if Path(out).resolve() == Path(log).resolve():
+        raise ValueError(f"replaying {log} into itself would overwrite it; choose another --out")
     odometry = Odometry(make_tracker(frontend, **tracker_options), odometry_config)
     meta = {"replayed_from": str(log), "odometry": asdict(odometry_config), "frontend": frontend,
             "frontend_options": tracker_options, **(metadata or {})}
@@ -160,6 +166,8 @@ def pipeline_matrix(worlds: tuple[str, ...] = ("plane", "room"), frontends: tupl
                     noises: tuple[float, ...] = (0.0, 1.0), frames: int = 60, seeds: tuple[int, ...] = tuple(range(6)),
                     scale: str = "gt", trajectory: str = "circle") -> list[dict]:
     """Drift of every world x front-end x noise combination, averaged over ``seeds``."""
+    if not (worlds and frontends and noises and seeds):
+        raise ValueError("the drift matrix needs at least one world, front-end, noise magnitude and seed")
     rows = []
     for world in worlds:
         for noise in noises:

@@ -80,9 +80,9 @@ def _eval_realimages(args: argparse.Namespace) -> None:
 
 def _eval_pipeline(args: argparse.Namespace) -> None:
     from backend.run import matrix_lines, pipeline_matrix
-    args.out.mkdir(parents=True, exist_ok=True)
     rows = pipeline_matrix(tuple(args.worlds), tuple(args.frontends), tuple(args.noise), args.frames,
                            tuple(range(args.seeds)), args.scale, args.trajectory)
+    args.out.mkdir(parents=True, exist_ok=True)
     _report(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), None)
 
 

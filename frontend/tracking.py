@@ -88,6 +88,9 @@ class MagicTracker(Tracker):
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
                  ransac: bool = False, max_age: int = 20, refine: bool = True, carry: bool = True):
         super().__init__()
+        if iterations < 1 or not max_dist > 0 or max_age < 0:
+            raise ValueError(f"MagicWarp iterations must be at least 1, max_dist positive and max_age at least 0, "
+                             f"got {iterations}, {max_dist}, {max_age}")
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
         self.refine, self.carry = refine, carry

@@ -21,7 +21,9 @@ class LogError(ValueError):
     """A file that is not an MCAP log, or not one this project can replay."""
 
 
-def _check(path: Path) -> None:
+def check_log(path: str | Path) -> None:
+    """Raise ``LogError`` unless ``path`` is an existing MCAP file (checked by its magic bytes)."""
+    path = Path(path)
     if not path.exists():
         raise LogError(f"{path}: no such file")
     with open(path, "rb") as f:
@@ -64,7 +66,7 @@ def read_frames(path: str | Path) -> Iterator[LogFrame]:
     whole chunk, with a warning that says what is missing; a frame missing image or camera info is an
     error."""
     path = Path(path)
-    _check(path)
+    check_log(path)
     parts: dict = {}
     stamp: int | None = None
     count = 0
@@ -109,7 +111,7 @@ def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
 def read_metadata(path: str | Path) -> dict:
     """The run's metadata (configuration, seed, software version), JSON values decoded."""
     path = Path(path)
-    _check(path)
+    check_log(path)
     with open(path, "rb") as f:
         try:
             for record in NonSeekingReader(f).iter_metadata():

@@ -150,6 +150,10 @@ def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
         np.testing.assert_allclose(a.T_estimate, b.T_estimate, atol=1e-9)
     with pytest.raises(ValueError, match="oracle"):
         replay(original, "oracle", config, tmp_path / "x.mcap", progress=False)
+    size = original.stat().st_size
+    with pytest.raises(ValueError, match="overwrite"):
+        replay(original, "classical", config, tmp_path / "." / "classical.mcap", progress=False)
+    assert original.stat().st_size == size and len(list(read_frames(original))) == 15
 
 
 def test_ctrl_c_finishes_the_file_cleanly(tmp_path):
