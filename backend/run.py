@@ -33,6 +33,13 @@ def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = F
     raise ValueError(f"unknown front-end {name!r}; expected one of {', '.join(FRONTENDS)}")
 
 
+def _front_end_options(frontend: str, config: OdometryConfig, tracker_options: dict) -> dict:
+    """``tracker_options`` with the defaults that depend on the odometry: carried magic tracks sit where
+    the dominant plane's homography puts them, so they are on by default only when relative poses come
+    from that homography too."""
+    return {"carry": config.method == "homography", **tracker_options} if frontend == "magic" else tracker_options
+
+
 def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
     for f in scenario:
         yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels))
@@ -72,6 +79,7 @@ def simulate(scenario_config: ScenarioConfig, frontend: str, odometry_config: Od
     scenario = Scenario(scenario_config)
     if odometry_config.scale == "plane" and odometry_config.plane_distance is None:
         odometry_config = replace(odometry_config, plane_distance=scenario.plane_distance())
+    tracker_options = _front_end_options(frontend, odometry_config, tracker_options)
     odometry = Odometry(make_tracker(frontend, scenario_config.seed, **tracker_options), odometry_config)
     frames = simulated_frames(scenario)
     if out is None:
@@ -96,6 +104,7 @@ def replay(log: str | Path, frontend: str, odometry_config: OdometryConfig, out:
     check_log(log)
     if Path(out).resolve() == Path(log).resolve():
         raise ValueError(f"replaying {log} into itself would overwrite it; choose another --out")
+    tracker_options = _front_end_options(frontend, odometry_config, tracker_options)
     odometry = Odometry(make_tracker(frontend, **tracker_options), odometry_config)
     meta = {"replayed_from": str(log), "odometry": asdict(odometry_config), "frontend": frontend,
             "frontend_options": tracker_options, **(metadata or {})}

@@ -112,7 +112,7 @@ def _tracker_options(args: argparse.Namespace) -> dict:
     if args.frontend != "magic":
         return {}
     return {"iterations": args.warp_iterations, "ransac": args.ransac, "refine": not args.no_refine,
-            "carry": not args.no_carry}
+            **({"carry": False} if args.no_carry else {})}
 
 
 def _print_drift(drift: dict, scale: str) -> None:
@@ -178,8 +178,9 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
     parser.add_argument("--no-refine", action="store_true",
                         help="use MagicWarp's homography as it is, without refining it by snapping and a robust fit")
     parser.add_argument("--no-carry", action="store_true",
-                        help="report only detected points; by default a track the detector misses is still reported "
-                             "where MagicWarp's homography carries it, for up to 20 frames")
+                        help="report only detected points; by default (with --method homography) a track the "
+                             "detector misses is still reported where MagicWarp's homography carries it, for up to 20 "
+                             "frames; the other methods get detections only, as carried points follow the dominant plane")
     parser.add_argument("--ransac", action="store_true", help="fundamental-matrix RANSAC on MagicWarp matches")
     parser.add_argument("--oracle-noise", type=float, default=0.5, metavar="PX",
                         help="standard deviation (px) of the Gaussian noise on the oracle's true projections")

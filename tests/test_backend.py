@@ -4,7 +4,7 @@ import pytest
 from backend import drift, relpose
 from backend.graph import PoseGraph
 from backend.odometry import Odometry, OdometryConfig
-from backend.run import make_tracker, run_frames, simulated_frames
+from backend.run import make_tracker, run_frames, simulate, simulated_frames
 from frontend.tracking import OracleTracker, Truth
 from sim.camera import intrinsics, invert, pose, project, transform
 from sim.scenario import Scenario, ScenarioConfig
@@ -130,3 +130,9 @@ def test_make_tracker_sets_the_oracle_pixel_noise():
     noisy = make_tracker("oracle", oracle_noise_px=2.0).track(image, truth)
     error = np.linalg.norm(noisy.points - truth.pixels[noisy.ids], axis=1)
     assert 1.5 < np.median(error) < 3.5  # a 2-D Gaussian of sigma 2 has a median radius of 2.35
+
+
+def test_magic_tracks_are_carried_only_for_homography_relative_poses():
+    for method, options, carried in [("homography", {}, True), ("essential", {}, False), ("homography", {"carry": False}, False)]:
+        run = simulate(ScenarioConfig(frames=3), "magic", OdometryConfig(method=method), progress=False, **options)
+        assert run["odometry"].tracker.carry is carried
