@@ -81,19 +81,20 @@ class MagicTracker(Tracker):
     every live track's position is carried by it and snapped to the nearest new detection within
     ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
     frames; with ``carry`` it is also reported there (score 0), so that a keyframe keeps its tracks
-    through the detector's misses. ``iterations`` applies MagicWarp iteratively; ``refine`` polishes
+    through the detector's misses; carried tracks fill what the detections leave of a ``budget`` of
+    reported points (the most recently detected first). ``iterations`` applies MagicWarp iteratively; ``refine`` polishes
     its H by snapping and a robust homography fit (``frontend.magicwarp.refine``); ``ransac`` adds a
     fundamental-matrix check."""
 
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
-                 ransac: bool = False, max_age: int = 20, refine: bool = True, carry: bool = True):
+                 ransac: bool = False, max_age: int = 20, refine: bool = True, carry: bool = True, budget: int = 150):
         super().__init__()
-        if iterations < 1 or not max_dist > 0 or max_age < 0:
-            raise ValueError(f"MagicWarp iterations must be at least 1, max_dist positive and max_age at least 0, "
-                             f"got {iterations}, {max_dist}, {max_age}")
+        if iterations < 1 or not max_dist > 0 or max_age < 0 or budget < 1:
+            raise ValueError(f"MagicWarp iterations and the budget must be at least 1, max_dist positive and max_age at "
+                             f"least 0, got {iterations}, {budget}, {max_dist}, {max_age}")
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
-        self.refine, self.carry = refine, carry
+        self.refine, self.carry, self.budget = refine, carry, budget
         self.detections = np.zeros((0, 2))            # the previous frame's detections, MagicWarp's input
         self.last_homography = np.eye(3)
         self.live = np.zeros((0, 2))                 # positions of live tracks (detected or carried)
@@ -127,6 +128,7 @@ class MagicTracker(Tracker):
         keep = missed & (self.live_age < self.max_age)
         h, w = image.shape
         reported = keep & self.carry & np.all((self.live >= 0) & (self.live <= [w - 1, h - 1]), axis=1)
+        reported &= np.cumsum(reported) <= self.budget - len(points)  # live tracks are ordered by last detection
         self.previous = Tracks(np.vstack([points, self.live[reported]]), np.concatenate([ids, self.live_ids[reported]]),
                                np.concatenate([detections[:, 2], np.zeros(reported.sum())]).astype(np.float64))
         self.detections = points

@@ -201,3 +201,7 @@ def test_magic_tracker_carries_a_missed_point_and_picks_it_up_again(carry):
         np.testing.assert_allclose(second.points[second.ids == missed][0], points[0] + shift, atol=1e-3)
     else:
         assert missed not in second.ids and len(second.ids) == len(points) - 1
+    frames = [points, points[1:] + shift]
+    tight = MagicTracker(_ScriptedDetector(frames), MagicWarp.pretrained(), carry=carry, budget=len(points) - 1)
+    tight.track(image)
+    assert len(tight.track(image).ids) == len(points) - 1  # no room left in the budget for the missed point
