@@ -183,7 +183,7 @@ class _ScriptedDetector:
 
 
 @pytest.mark.parametrize("carry", [True, False])
-def test_magic_tracker_carries_a_missed_point_and_picks_it_up_again(carry):
+def test_magic_tracker_carries_a_missed_point_within_its_budget_and_picks_it_up_again(carry):
     from frontend.tracking import MagicTracker
     from sim.pointsets import detector_points
     points = detector_points(np.random.default_rng(0), 60, (120, 160))
