@@ -187,8 +187,8 @@ def table_lines(result: dict) -> list[str]:
                 note = "   [" + " ".join(f"{v:.2f}" for v in paper) + "]" if method != "ransac" else ""
                 lines.append(f"  {density:<7}{float(extra):>4.0%} {values}{note}")
         if method.startswith("magicwarp"):
-            short = short_of_paper(result, method)
-            summary = f"{len(PAPER) * len(GRIDS) - len(short)} of {len(PAPER) * len(GRIDS)} cells at or above the paper"
+            short, cells = short_of_paper(result, method), len(PAPER) * len(GRIDS)
+            summary = f"{cells - len(short)} of {cells} cells at or above the paper"
             lines += textwrap.wrap(summary + (f"; short: {', '.join(short)}" if short else ""), 110,
                                    initial_indent="  ", subsequent_indent="    ")
     return lines + ([""] + error_lines(result["motion_errors"]) if "motion_errors" in result else [])

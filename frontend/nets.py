@@ -42,12 +42,17 @@ def parameter_bytes(model: nn.Module) -> int:
     return sum(t.numel() * 4 for t in list(model.parameters()) + list(model.buffers()) if t.is_floating_point())
 
 
+def network_config(state: dict) -> dict:
+    """The network config a loaded checkpoint or shipped file was saved with, sequences as tuples (as
+    ``dataclasses.asdict`` of the config gives them)."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()}
+
+
 def read_weights(path: Path) -> tuple[dict, dict]:
     """(network config, state dict) of shipped weights or a training checkpoint; a checkpoint's moving
     average of the weights (``--ema``) when it has one, as that is what it was validated on."""
     state = torch.load(path, map_location="cpu", weights_only=False)
-    config = {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()}
-    return config, state.get("ema", state["model"])
+    return network_config(state), state.get("ema", state["model"])
 
 
 def embed_weights(model: nn.Module, weights: dict) -> None:

@@ -82,9 +82,9 @@ class MagicTracker(Tracker):
     ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
     frames; with ``carry`` it is also reported there (score 0), so that a keyframe keeps its tracks
     through the detector's misses; carried tracks fill what the detections leave of a ``budget`` of
-    reported points (the most recently detected first). ``iterations`` applies MagicWarp iteratively; ``refine`` polishes
-    its H by snapping and a robust homography fit (``frontend.magicwarp.refine``); ``ransac`` adds a
-    fundamental-matrix check."""
+    reported points (the most recently detected first). ``iterations`` applies MagicWarp iteratively;
+    ``refine`` polishes its H by snapping and a robust homography fit (``frontend.magicwarp.refine``);
+    ``ransac`` adds a fundamental-matrix check."""
 
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
                  ransac: bool = False, max_age: int = 20, refine: bool = True, carry: bool = True, budget: int = 150):

@@ -22,7 +22,7 @@ import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
 
-from frontend.nets import embed_weights, read_weights
+from frontend.nets import embed_weights, network_config, read_weights
 
 WIDENABLE = {"widths", "hidden", "head"}  # network config fields --init may widen (same layers, more units)
 
@@ -81,13 +81,13 @@ def load_weights(model: torch.nn.Module, path: Path) -> None:
     if config == wanted:
         model.load_state_dict(weights)
         return
-    layout = {key for key in wanted if config.get(key) != wanted[key]} <= WIDENABLE
+    other_shape = f"{path} holds a network of another shape ({config}), not {wanted}"
+    if not {key for key in wanted if config.get(key) != wanted[key]} <= WIDENABLE:
+        raise ValueError(f"{other_shape}: its layout differs")
     try:
-        if not layout:
-            raise ValueError("its layout differs")
         embed_weights(model, weights)
     except ValueError as error:
-        raise ValueError(f"{path} holds a network of another shape ({config}), not {wanted}: {error}") from None
+        raise ValueError(f"{other_shape}: {error}") from None
 
 
 def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) -> AveragedModel | None:
@@ -118,8 +118,8 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
     last = out_dir / "last.pt"
     if last.exists():
         state = torch.load(last, map_location="cpu", weights_only=False)
-        if state["config"] != asdict(model.config):
-            raise ValueError(f"{last} holds a network of another shape ({state['config']}), not "
+        if network_config(state) != asdict(model.config):
+            raise ValueError(f"{last} holds a network of another shape ({network_config(state)}), not "
                              f"{asdict(model.config)}: resume it with its own options, or train into another folder")
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])

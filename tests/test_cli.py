@@ -39,11 +39,12 @@ def test_bad_input_gets_a_clear_error(tmp_path, capsys):
     assert "at least 2 frames" in capsys.readouterr().err
     assert main(["run", "--size", "100", "160", "--out", str(tmp_path / "r.mcap")]) == 2
     assert "divisible by 8" in capsys.readouterr().err
-    for argv, message in [(["run", "--keyframe-parallax", "-1"], "keyframe parallax must be positive"),
-                          (["run", "--warp-iterations", "0"], "iterations and the budget must be at least 1"),
-                          (["eval", "pipeline", "--seeds", "0", "--out", str(tmp_path / "eval")], "at least one"),
-                          (["replay", str(tmp_path / "missing.mcap")], "no such file")]:
-        assert main([*argv, "--out", str(tmp_path / "r.mcap")] if argv[0] != "eval" else argv) == 2
+    log, folder = str(tmp_path / "r.mcap"), str(tmp_path / "eval")
+    for argv, message in [(["run", "--keyframe-parallax", "-1", "--out", log], "keyframe parallax must be positive"),
+                          (["run", "--warp-iterations", "0", "--out", log], "iterations and the budget must be at least 1"),
+                          (["eval", "pipeline", "--seeds", "0", "--out", folder], "at least one"),
+                          (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file")]:
+        assert main(argv) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "r.mcap").exists() and not (tmp_path / "eval").exists()  # bad input leaves nothing behind
 
