@@ -13,6 +13,8 @@ PAPER_MS = {("S", (120, 160)): 5.3, ("S", (240, 320)): 38.1, ("L", (120, 160)): 
 
 def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> float:
     """Median wall time of ``fn`` in milliseconds."""
+    if repeats < 1 or warmup < 0:
+        raise ValueError(f"timing needs at least 1 repetition and no negative warm-up, got {repeats} and {warmup}")
     for _ in range(warmup):
         fn()
     samples = []

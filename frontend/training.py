@@ -40,6 +40,18 @@ class LoopConfig:
     ema: float = 0.0    # decay of the weights' moving average per step (0: none; 0.999 ~ the last 1000 steps)
     init: str = ""      # weights (checkpoint or shipped file) a new run starts from; ignored when resuming
 
+    def __post_init__(self):
+        problems = [f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}"
+                    for name in ("iterations", "batch", "validate_every", "threads") if getattr(self, name) < 1]
+        if not self.lr > 0:
+            problems.append(f"--lr must be positive, got {self.lr}")
+        if self.seed < 0:
+            problems.append(f"--seed must be non-negative, got {self.seed}")
+        if not 0 <= self.ema < 1:
+            problems.append(f"--ema must lie in [0, 1), got {self.ema}")
+        if problems:
+            raise ValueError("; ".join(problems))
+
 
 def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int,
                     rng: np.random.Generator, config: Any, extra: dict) -> None:

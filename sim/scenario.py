@@ -44,6 +44,8 @@ class Scenario:
         check_size(config.size)
         if config.frames < 2:
             raise ValueError(f"a run needs at least 2 frames, got {config.frames}")
+        if config.seed < 0:
+            raise ValueError(f"the seed must be non-negative, got {config.seed}")
         if not 0 <= config.noise <= 2:
             raise ValueError(f"noise magnitude must lie in [0, 2], got {config.noise}")
         self.config = config

@@ -43,7 +43,12 @@ def test_bad_input_gets_a_clear_error(tmp_path, capsys):
     for argv, message in [(["run", "--keyframe-parallax", "-1", "--out", log], "keyframe parallax must be positive"),
                           (["run", "--warp-iterations", "0", "--out", log], "iterations and the budget must be at least 1"),
                           (["eval", "pipeline", "--seeds", "0", "--out", folder], "at least one"),
-                          (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file")]:
+                          (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
+                          (["run", "--seed", "-1", "--out", log], "seed must be non-negative"),
+                          (["bench", "warp", "--repeats", "0"], "at least 1 repetition"),
+                          (["train", "magicwarp", "--batch", "0", "--out", folder], "--batch must be at least 1"),
+                          (["train", "magicpoint", "--iterations", "0", "--ema", "1", "--out", folder],
+                           "--iterations must be at least 1, got 0; --ema must lie in [0, 1)")]:
         assert main(argv) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "r.mcap").exists() and not (tmp_path / "eval").exists()  # bad input leaves nothing behind
