@@ -176,7 +176,9 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
                         help="median track motion (px) since the keyframe that makes a new keyframe")
     parser.add_argument("--warp-iterations", type=int, default=1, help="MagicWarp iterations (magic front-end)")
     parser.add_argument("--no-refine", action="store_true",
-                        help="use MagicWarp's homography as it is, without refining it by snapping and a robust fit")
+                        help="use MagicWarp's homography as it is; by default it is refined by snapping and a robust "
+                             "fit, and the no-motion and constant-motion guesses, refined the same way, replace it "
+                             "when more detections agree with them")
     parser.add_argument("--no-carry", action="store_true",
                         help="report only detected points; by default (with --method homography) a track the "
                              "detector misses is still reported where MagicWarp's homography carries it, for up to 20 "

@@ -54,18 +54,24 @@ def subpixel(scores: np.ndarray, points: np.ndarray) -> np.ndarray:
     return refined
 
 
+def disk(radius: int) -> np.ndarray:
+    """uint8 (2r+1, 2r+1) mask of the pixels within ``radius`` of the centre (Euclidean)."""
+    dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    return (dx ** 2 + dy ** 2 <= radius ** 2).astype(np.uint8)
+
+
 def extract_points(scores: np.ndarray, threshold: float, nms_radius: int = 4, border: int = 4,
                    top_k: int | None = None, refine: bool = False) -> np.ndarray:
-    """Points of a score map (H, W): local maxima in a (2r+1)^2 window above ``threshold``, at least
-    ``border`` pixels from the edge, then greedy NMS with radius r, best ``top_k`` kept; with
-    ``refine``, moved to sub-pixel positions (``subpixel``).
+    """Points of a score map (H, W): maxima of their disk of radius r = ``nms_radius`` pixels above
+    ``threshold``, at least ``border`` pixels from the edge, then greedy NMS with the same radius (a
+    weaker point within r pixels of a stronger one goes), best ``top_k`` kept; with ``refine``, moved
+    to sub-pixel positions (``subpixel``).
 
     Returns float32 (N, 3) [x, y, score] sorted by descending score.
     """
     scores = np.asarray(scores, np.float32)
     if nms_radius > 0:
-        window = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * nms_radius + 1, 2 * nms_radius + 1))
-        peaks = (scores >= cv2.dilate(scores, window)) & (scores > threshold)
+        peaks = (scores >= cv2.dilate(scores, disk(nms_radius))) & (scores > threshold)
     else:
         peaks = scores > threshold
     if border > 0:

@@ -1,8 +1,9 @@
 """Front-ends: turn each frame into tracked points with track ids, behind one interface.
 
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
-  snapping and a robust homography fit), nearest-neighbour snapping (optionally a fundamental-matrix
-  RANSAC on top); a track the detector misses is carried on by that homography.
+  snapping and a robust homography fit, checked against the no-motion and constant-motion guesses),
+  nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top); a track the detector
+  misses is carried on by that homography.
 - ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked), replenished when tracks run low: what a practitioner would build.
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
@@ -20,6 +21,7 @@ from frontend.magicpoint import MagicPoint
 from frontend.magicwarp import MagicWarp, match, refine, warp_points
 
 FRONTENDS = ("magic", "classical", "oracle")
+SUPPORT_PX = 1.5  # a new detection this close to a previous one moved by a candidate homography supports it
 
 
 @dataclass
@@ -83,7 +85,8 @@ class MagicTracker(Tracker):
     frames; with ``carry`` it is also reported there (score 0), so that a keyframe keeps its tracks
     through the detector's misses; carried tracks fill what the detections leave of a ``budget`` of
     reported points (the most recently detected first). ``iterations`` applies MagicWarp iteratively;
-    ``refine`` polishes its H by snapping and a robust homography fit (``frontend.magicwarp.refine``);
+    ``refine`` polishes its H by snapping and a robust homography fit (``frontend.magicwarp.refine``)
+    and lets the previous H and the identity, refined the same way, compete with it (``_homography``);
     ``ransac`` adds a fundamental-matrix check."""
 
     def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
@@ -102,6 +105,18 @@ class MagicTracker(Tracker):
         self.live_age = np.zeros(0, np.int64)         # frames since last detected
         self.timings_ms: dict[str, float] = {}        # the last frame's stages
 
+    def _homography(self, points: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
+        """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: MagicWarp's
+        estimate, the previous frame's H (constant motion) and the identity (no motion) are each refined,
+        and the one most detections snap to within ``SUPPORT_PX`` pixels wins (MagicWarp on ties); without,
+        MagicWarp's estimate as it is."""
+        H = self.warp.estimate(self.detections, points, image_shape, self.iterations)
+        if not self.refine:
+            return H
+        candidates = [refine(self.detections, points, guess) for guess in (H, self.last_homography, np.eye(3))]
+        support = [len(match(self.detections, points, candidate, SUPPORT_PX)) for candidate in candidates]
+        return candidates[int(np.argmax(support))]
+
     def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
         started = time.perf_counter()
         detections = self.detector.detect(image)
@@ -110,8 +125,7 @@ class MagicTracker(Tracker):
         pairs = np.zeros((0, 2), np.int64)
         if len(self.live) and len(points):
             if len(self.detections):
-                H = self.warp.estimate(self.detections, points, image.shape, self.iterations)
-                self.last_homography = refine(self.detections, points, H) if self.refine else H
+                self.last_homography = self._homography(points, image.shape)
             warped = time.perf_counter()
             self.live = warp_points(self.live, self.last_homography)
             pairs = match(self.live, points, np.eye(3), self.max_dist)

@@ -56,6 +56,9 @@ def test_point_extraction_nms_border_top_k_and_subpixel():
     points = extract_points(scores, 0.1, nms_radius=4, border=4)
     assert points[:, :2].tolist() == [[20, 13], [40, 30]]  # sorted by score, neighbour and border peaks gone
     assert len(extract_points(scores, 0.1, top_k=1)) == 1
+    diagonal = np.zeros((40, 48), np.float32)
+    diagonal[10, 10], diagonal[14, 13], diagonal[13, 14] = 1.0, 0.8, 0.6  # 5.0 px and 5.0 px away, 1.4 px apart
+    assert extract_points(diagonal, 0.1, nms_radius=4, border=0)[:, :2].tolist() == [[10, 10], [13, 14]]
     refined = extract_points(scores, 0.1, refine=True)
     assert np.abs(refined[0, :2] - [20.3, 12.6]).max() < np.abs(points[0, :2] - [20.3, 12.6]).max() / 2
     np.testing.assert_allclose(refined[1, :2], [40, 30], atol=1e-6)  # a symmetric peak stays put

@@ -205,3 +205,24 @@ def test_magic_tracker_carries_a_missed_point_within_its_budget_and_picks_it_up_
     tight = MagicTracker(_ScriptedDetector(frames), MagicWarp.pretrained(), carry=carry, budget=len(points) - 1)
     tight.track(image)
     assert len(tight.track(image).ids) == len(points) - 1  # no room left in the budget for the missed point
+
+
+def test_magic_tracker_keeps_its_tracks_when_magicwarp_is_far_off():
+    from frontend.tracking import MagicTracker
+    from sim.pointsets import detector_points
+
+    class FarOff:  # every estimate 20 px away from the truth: too far for snapping to mend
+        def estimate(self, points_a, points_b, image_size, iterations=1):
+            return np.array([[1.0, 0, 20], [0, 1, -20], [0, 0, 1]])
+
+    points = detector_points(np.random.default_rng(1), 60, (120, 160))
+    points = points[(points > 8).all(1) & (points < [150, 110]).all(1)]
+    shift = np.array([1.0, 0.5])  # the small motion of a slow camera
+    frames = [points + i * shift for i in range(4)]
+    image = np.zeros((120, 160), np.uint8)
+    tracker = MagicTracker(_ScriptedDetector(frames), FarOff())
+    tracks = [tracker.track(image) for _ in frames]
+    assert all(np.array_equal(t.ids, tracks[0].ids) for t in tracks)  # the no-motion guess, refined, wins
+    unrefined = MagicTracker(_ScriptedDetector(frames), FarOff(), refine=False, carry=False)
+    first, second = unrefined.track(image), unrefined.track(image)
+    assert len(np.intersect1d(first.ids, second.ids)) < len(points) / 10  # MagicWarp alone loses its tracks
