@@ -15,15 +15,17 @@ from sim.scenario import Scenario, ScenarioConfig
 
 
 def make_tracker(name: str, seed: int = 0, iterations: int = 1, ransac: bool = False, refine: bool = True,
-                 carry: bool = True, oracle_noise_px: float = 0.5) -> Tracker:
+                 carry: bool = True, oracle_noise_px: float = 0.5, detector_scale: int = 2) -> Tracker:
     """A front-end by name (``frontend.tracking.FRONTENDS``), with the shipped networks for "magic"
-    (MagicPoint S at the evaluation threshold 0.001, at most 150 points: the oracle's budget, with
-    four grid shifts so that detections move with the image); the oracle's projections get Gaussian
-    noise of ``oracle_noise_px`` pixels."""
+    (MagicPoint S at the evaluation threshold 0.001, at most 150 points: the oracle's budget, on the
+    image enlarged ``detector_scale`` times, with grid shifts so that detections move with the image:
+    four at scale 1, two above, to stay within the 30 fps budget); the oracle's projections get
+    Gaussian noise of ``oracle_noise_px`` pixels."""
     if name == "magic":
         from frontend.magicpoint import MagicPoint
         from frontend.magicwarp import MagicWarp
-        detector = MagicPoint.pretrained("S", threshold=0.001, top_k=150, grid_shifts=4, subpixel=True)
+        detector = MagicPoint.pretrained("S", threshold=0.001, top_k=150, grid_shifts=4 if detector_scale == 1 else 2,
+                                         subpixel=True, upsample=detector_scale)
         return MagicTracker(detector, MagicWarp.pretrained(), iterations=iterations, ransac=ransac, refine=refine,
                             carry=carry)
     if name == "classical":

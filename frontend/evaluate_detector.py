@@ -49,14 +49,16 @@ ground truth has corners up to the image edge (2.6% of them lie within 4 px of i
 
 
 def available_detectors(threshold: float = 0.001, border: int = 4) -> dict[str, Detector]:
-    """FAST, Harris, Shi, every MagicPoint variant whose weights are shipped, and MagicPoint S with four
-    grid shifts (``MagicPointS-x4``); all drop detections within ``border`` pixels of the edge."""
+    """FAST, Harris, Shi, every MagicPoint variant whose weights are shipped, MagicPoint S with four
+    grid shifts (``MagicPointS-x4``) and S on the image enlarged 2x with two grid shifts, as the magic
+    tracker runs it (``MagicPointS-2x``); all drop detections within ``border`` pixels of the edge."""
     from frontend.classical import ClassicalDetector
     from frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
 
     detectors: dict[str, Detector] = {f"MagicPoint{v}": MagicPoint.pretrained(v, threshold=threshold, border=border)
                                       for v in VARIANTS if (WEIGHTS / f"magicpoint_{v}.pt").exists()}
     detectors["MagicPointS-x4"] = MagicPoint.pretrained("S", threshold=threshold, border=border, grid_shifts=4)
+    detectors["MagicPointS-2x"] = MagicPoint.pretrained("S", threshold=threshold, border=border, grid_shifts=2, upsample=2)
     detectors.update({kind: ClassicalDetector(kind.lower(), border=border) for kind in ("FAST", "Harris", "Shi")})
     return detectors
 

@@ -62,7 +62,25 @@ def test_grid_shifts_make_the_heatmap_move_with_the_image(rng):
     gap = lambda detector: np.abs(detector.heatmap(moved)[:, 44:-40] - detector.heatmap(image)[:, 40:-44]).max()
     assert gap(shifted) < 1e-4 < 0.05 < gap(single)  # exact in the interior with shifts; not without
     with pytest.raises(ValueError, match="grid_shifts"):
-        MagicPoint.pretrained("S", grid_shifts=2)
+        MagicPoint.pretrained("S", grid_shifts=3)
+
+
+def test_upsampled_detections_land_on_the_true_corners_in_input_pixels():
+    rng = np.random.default_rng(0)
+    detector = MagicPoint.pretrained("S", upsample=2, subpixel=True)
+    offsets = []
+    for category in ("checkerboards", "quadrilaterals", "triangles") * 5:
+        image, corners = shapes.render(category, rng)
+        points = detector.detect(image)[:, :2]
+        distance = np.linalg.norm(points[:, None] - corners[None], axis=2)
+        near = distance.min(1) < 3
+        offsets.append(points[near] - corners[distance.argmin(1)[near]])
+    offsets = np.vstack(offsets)
+    assert len(offsets) > 100
+    assert np.all(np.abs(offsets.mean(0)) < 0.15)  # a half-pixel slip in the mapping back would show here
+    assert np.median(np.linalg.norm(offsets, axis=1)) < 0.4
+    with pytest.raises(ValueError, match="upsample"):
+        MagicPoint.pretrained("S", upsample=0)
 
 
 def test_magicpoint_rejects_bad_images():
