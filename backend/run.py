@@ -153,14 +153,15 @@ def logged_frames(path: str | Path) -> Iterable[InputFrame]:
         yield InputFrame(f.image, f.K, f.stamp_ns, f.T_groundtruth)
 
 
-def bench_pipeline(frames: int = 60, seed: int = 0) -> dict[str, float]:
-    """Mean per-frame milliseconds of each stage on one thread (rendering not counted), magic front-end:
-    the odometry's stages, and inside its front-end MagicPoint, MagicWarp and matching."""
+def bench_pipeline(frames: int = 60, seed: int = 0, detector_scale: int = 2) -> dict[str, float]:
+    """Mean per-frame milliseconds of each stage on one thread (rendering not counted), magic front-end
+    (``make_tracker`` defaults but for ``detector_scale``): the odometry's stages, and inside its
+    front-end MagicPoint, MagicWarp and matching."""
     import torch
 
     torch.set_num_threads(1)
     rendered = list(simulated_frames(Scenario(ScenarioConfig(frames=frames, seed=seed))))
-    tracker = make_tracker("magic", seed)
+    tracker = make_tracker("magic", seed, detector_scale=detector_scale)
     odometry = Odometry(tracker, OdometryConfig(covariance=False))
     stages: dict[str, list[float]] = {}
     for frame in rendered:

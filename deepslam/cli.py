@@ -89,7 +89,9 @@ def _eval_pipeline(args: argparse.Namespace) -> None:
 def _bench(args: argparse.Namespace) -> None:
     if args.target == "pipeline":
         from backend.run import bench_pipeline
-        for name, value in bench_pipeline(args.frames).items():
+        if args.frames < 2:
+            raise ValueError("--frames must be at least 2")
+        for name, value in bench_pipeline(args.frames, detector_scale=args.detector_scale).items():
             print(f"  {name:<24} {value:8.2f} {'' if name == 'fps' else 'ms'}")
         return
     from frontend import bench
@@ -319,8 +321,12 @@ def build_parser() -> argparse.ArgumentParser:
                          ("warp", "MagicWarp forward pass (BatchNorm folded)"),
                          ("pipeline", "per-frame time of every pipeline stage (magic front-end, no rendering)")):
         sub = targets.add_parser(target, help=text)
-        sub.add_argument("--repeats", type=int, default=100, help="timed repetitions (median reported)")
-        sub.add_argument("--frames", type=int, default=60, help="frames of the simulated run (pipeline)")
+        if target == "pipeline":
+            sub.add_argument("--frames", type=int, default=60, help="frames of the simulated run, each timed once")
+            sub.add_argument("--detector-scale", type=int, choices=(1, 2), default=2,
+                             help="MagicPoint detects on the image enlarged this many times (as in `deepslam run`)")
+        else:
+            sub.add_argument("--repeats", type=int, default=100, help="timed repetitions (median reported)")
         sub.set_defaults(func=_bench)
     return parser
 
