@@ -81,7 +81,7 @@ class MagicPoint:
                  top_k: int | None = None, grid_shifts: int = 1, subpixel: bool = False, upsample: int = 1):
         if grid_shifts not in GRID_SHIFTS:
             raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
-        if upsample not in (1, 2, 3, 4):
+        if not isinstance(upsample, int) or not 1 <= upsample <= 4:
             raise ValueError(f"upsample must be an integer from 1 to 4, got {upsample}")
         self.net = fold_batchnorm(net)
         self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k

@@ -81,6 +81,8 @@ def test_upsampled_detections_land_on_the_true_corners_in_input_pixels():
     assert np.median(np.linalg.norm(offsets, axis=1)) < 0.4
     with pytest.raises(ValueError, match="upsample"):
         MagicPoint.pretrained("S", upsample=0)
+    with pytest.raises(ValueError, match="upsample"):
+        MagicPoint.pretrained("S", upsample=2.0)
 
 
 def test_magicpoint_rejects_bad_images():
