@@ -176,8 +176,9 @@ def bench_pipeline(frames: int = 60, seed: int = 0, detector_scale: int = 2) -> 
 
 def pipeline_matrix(worlds: tuple[str, ...] = ("plane", "room"), frontends: tuple[str, ...] = ("oracle", "magic", "classical"),
                     noises: tuple[float, ...] = (0.0, 1.0), frames: int = 60, seeds: tuple[int, ...] = tuple(range(6)),
-                    scale: str = "gt", trajectory: str = "circle") -> list[dict]:
-    """Drift of every world x front-end x noise combination, averaged over ``seeds``."""
+                    scale: str = "gt", trajectory: str = "circle", detector_scale: int = 2) -> list[dict]:
+    """Drift of every world x front-end x noise combination, averaged over ``seeds`` (the magic front-end's
+    MagicPoint on the image enlarged ``detector_scale`` times)."""
     if not (worlds and frontends and noises and seeds):
         raise ValueError("the drift matrix needs at least one world, front-end, noise magnitude and seed")
     rows = []
@@ -185,7 +186,8 @@ def pipeline_matrix(worlds: tuple[str, ...] = ("plane", "room"), frontends: tupl
         for noise in noises:
             for frontend in frontends:
                 runs = [simulate(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, noise=noise, seed=seed),
-                                 frontend, OdometryConfig(scale=scale), progress=False)["drift"] for seed in seeds]
+                                 frontend, OdometryConfig(scale=scale), progress=False, detector_scale=detector_scale)["drift"]
+                        for seed in seeds]
                 rows.append({"world": world, "noise": noise, "frontend": frontend, "scale": scale,
                              **{k: float(np.mean([r[k] for r in runs])) for k in ("ate_se3", "ate_sim3", "rpe_trans",
                                                                                   "rpe_rot_deg", "final_drift_pct")}})

@@ -81,7 +81,7 @@ def _eval_realimages(args: argparse.Namespace) -> None:
 def _eval_pipeline(args: argparse.Namespace) -> None:
     from backend.run import matrix_lines, pipeline_matrix
     rows = pipeline_matrix(tuple(args.worlds), tuple(args.frontends), tuple(args.noise), args.frames,
-                           tuple(range(args.seeds)), args.scale, args.trajectory)
+                           tuple(range(args.seeds)), args.scale, args.trajectory, args.detector_scale)
     args.out.mkdir(parents=True, exist_ok=True)
     _report(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), None)
 
@@ -286,7 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
     detector.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plots")
     detector.add_argument("--detectors", nargs="+", default=None, metavar="NAME",
                           help="evaluate only these (MagicPointS, MagicPointL, MagicPointS-x4 = S with four grid shifts, "
-                               "FAST, Harris, Shi); default all")
+                               "MagicPointS-2x = S on the image enlarged 2x with two grid shifts, as the magic tracker "
+                               "runs it, FAST, Harris, Shi); default all")
     detector.set_defaults(func=_eval_detector)
     warp_eval = evals.add_parser("warp", help="MagicWarp 90%% breakdown-point table and repeatability plots")
     warp_eval.add_argument("--runs", type=int, default=50, help="random point sets per cell (the paper: 50)")
@@ -311,6 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
     matrix.add_argument("--frames", type=int, default=60, help="frames per run")
     matrix.add_argument("--seeds", type=int, default=6, help="runs per cell (seeds 0..N-1; the worlds differ by seed: textures, layout)")
     matrix.add_argument("--scale", choices=("gt", "plane"), default="gt", help="scale method")
+    matrix.add_argument("--detector-scale", type=int, choices=(1, 2), default=2,
+                        help="MagicPoint detects on the image enlarged this many times (magic front-end, as in `deepslam run`)")
     matrix.add_argument("--trajectory", choices=("circle", "figure8", "line", "random"), default="circle", help="camera path")
     matrix.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")
     matrix.set_defaults(func=_eval_pipeline)
