@@ -50,16 +50,18 @@ def bench_detector(repeats: int = 100) -> list[dict]:
 
 
 def bench_warp(repeats: int = 200) -> list[dict]:
-    """MagicWarp forward passes on 20x15x130 and 40x30x130 inputs."""
-    from frontend.magicwarp import MagicWarp, MagicWarpNet
+    """MagicWarp forward passes on 20x15x130 and 40x30x130 inputs (the shipped network, or the default
+    architecture untrained when no weights are shipped)."""
+    from frontend.magicwarp import WEIGHTS, MagicWarp, MagicWarpNet
 
     torch.set_num_threads(1)
-    warp = MagicWarp(MagicWarpNet())
+    shipped = (WEIGHTS / "magicwarp.pt").exists()
+    warp = MagicWarp.pretrained() if shipped else MagicWarp(MagicWarpNet())
     rows = []
     for size in ((120, 160), (240, 320)):
         x = torch.rand(1, 130, size[0] // 8, size[1] // 8)
         with torch.inference_mode():
             forward = time_ms(lambda: warp.net(x), repeats)
         rows.append({"model": "MagicWarp", "input": f"{size[1] // 8}x{size[0] // 8}x130", "forward_ms": forward,
-                     "paper_ms": PAPER_MS[("warp", size)]})
+                     "paper_ms": PAPER_MS[("warp", size)], "weights": "shipped" if shipped else "untrained"})
     return rows
