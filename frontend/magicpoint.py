@@ -73,8 +73,8 @@ class MagicPoint:
     the 8-pixel cell grid (3-4x the time; 2: the diagonal shift only): detections then move with the
     image more faithfully (the single pass is not shift-equivariant within a cell).
     ``upsample`` s > 1 detects on the image enlarged s times (bilinear; the NMS radius and border scale
-    with it, points come back in input pixels): the network then sees the small corners of real
-    photographs at the scale of its synthetic training shapes, at about s^2 the time.
+    with it, points come back in input pixels): the small corners of real photographs then come
+    closer to the scale of its synthetic training shapes, at about s^2 the time.
     """
 
     def __init__(self, net: MagicPointNet, threshold: float = 0.015, nms_radius: int = 4, border: int = 4,
