@@ -123,12 +123,11 @@ class MagicPoint:
     def detect(self, image: np.ndarray) -> np.ndarray:
         """Corners float32 (N, 3) [x, y, score] sorted by descending score, in the input's pixels."""
         s = self.upsample
-        if s == 1:
-            return extract_points(self.heatmap(image), self.threshold, self.nms_radius, self.border, self.top_k,
-                                  self.subpixel)
-        h, w = check_image(image, CELL).shape
-        enlarged = cv2.resize(image, (w * s, h * s), interpolation=cv2.INTER_LINEAR)
-        points = extract_points(self.heatmap(enlarged), self.threshold, self.nms_radius * s, self.border * s,
-                                self.top_k, self.subpixel)
-        points[:, :2] = (points[:, :2] + 0.5) / s - 0.5  # pixel centres: x_enlarged + 0.5 = s (x + 0.5)
+        if s > 1:
+            h, w = check_image(image, CELL).shape
+            image = cv2.resize(image, (w * s, h * s), interpolation=cv2.INTER_LINEAR)
+        points = extract_points(self.heatmap(image), self.threshold, self.nms_radius * s, self.border * s, self.top_k,
+                                self.subpixel)
+        if s > 1:
+            points[:, :2] = (points[:, :2] + 0.5) / s - 0.5  # pixel centres: x_enlarged + 0.5 = s (x + 0.5)
         return points
