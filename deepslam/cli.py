@@ -89,8 +89,6 @@ def _eval_pipeline(args: argparse.Namespace) -> None:
 def _bench(args: argparse.Namespace) -> None:
     if args.target == "pipeline":
         from backend.run import bench_pipeline
-        if args.frames < 2:
-            raise ValueError("--frames must be at least 2")
         for name, value in bench_pipeline(args.frames, detector_scale=args.detector_scale).items():
             print(f"  {name:<24} {value:8.2f} {'' if name == 'fps' else 'ms'}")
         return

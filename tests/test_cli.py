@@ -46,7 +46,7 @@ def test_bad_input_gets_a_clear_error(tmp_path, capsys):
                           (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
                           (["run", "--seed", "-1", "--out", log], "seed must be non-negative"),
                           (["bench", "warp", "--repeats", "0"], "at least 1 repetition"),
-                          (["bench", "pipeline", "--frames", "1"], "--frames must be at least 2"),
+                          (["bench", "pipeline", "--frames", "1"], "a run needs at least 2 frames, got 1"),
                           (["train", "magicwarp", "--batch", "0", "--out", folder], "--batch must be at least 1"),
                           (["train", "magicpoint", "--iterations", "0", "--ema", "1", "--out", folder],
                            "--iterations must be at least 1, got 0; --ema must lie in [0, 1)")]:
