@@ -14,7 +14,8 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
                          motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
-    run(args.out, config, MagicWarpConfig(widths=tuple(args.widths), hidden=args.hidden))
+    shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden}
+    run(args.out, config, MagicWarpConfig(**{name: value for name, value in shape.items() if value is not None}))
 
 
 def _train_magicpoint(args: argparse.Namespace) -> None:
@@ -224,10 +225,12 @@ def build_parser() -> argparse.ArgumentParser:
                       metavar=("PLANE", "SPHERE", "CUBE", "MIXED", "HOMOGRAPHY"),
                       help="how often each kind of pair is drawn: point clouds seen by two cameras (plane, sphere, "
                            "cube, mixed scene) or image points moved by a random 2D homography")
-    warp.add_argument("--widths", type=int, nargs="+", default=(32, 64, 64, 128),
-                      help="encoder widths, two VGG blocks per 2x2 max-pool (a new run only; a resumed run keeps its own)")
-    warp.add_argument("--hidden", type=int, default=256,
-                      help="width of the hidden fully connected layer (a new run only; a resumed run keeps its own)")
+    warp.add_argument("--widths", type=int, nargs="+", default=None,
+                      help="encoder widths, two VGG blocks per 2x2 max-pool (default: the shipped network's, "
+                           "64 64 128 128 128 128; a new run only, a resumed run keeps its own)")
+    warp.add_argument("--hidden", type=int, default=None,
+                      help="width of the hidden fully connected layer (default: the shipped network's, 512; "
+                           "a new run only, a resumed run keeps its own)")
     warp.add_argument("--homography", type=float, nargs=4, default=(0.3, math.pi / 4, 0.35, 0.1),
                       metavar=("TRANSLATION", "ROTATION", "ZOOM", "JITTER"),
                       help="ranges of the 2D homography pairs at full motion: translation and corner jitter as shares "

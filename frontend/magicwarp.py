@@ -20,9 +20,9 @@ class MagicWarpConfig:
     """Encoder widths (two VGG blocks per stage, a 2x2 max-pool after each stage), the grid the
     features are pooled to before the fully connected layers, and the hidden FC width."""
 
-    widths: tuple[int, ...] = (32, 64, 64, 128)
+    widths: tuple[int, ...] = (64, 64, 128, 128, 128, 128)  # the shipped network's shape
     pooled: tuple[int, int] = (3, 5)
-    hidden: int = 256
+    hidden: int = 512
 
     def __post_init__(self):
         if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:

@@ -7,7 +7,7 @@ from frontend import MagicPoint, MagicWarp, match
 from frontend.cells import points_to_cells
 from frontend.classical import ClassicalDetector
 from frontend.magicpoint import VARIANTS, MagicPointNet
-from frontend.magicwarp import MagicWarpNet, normalizer, warp_loss
+from frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
 from frontend.nets import fold_batchnorm
 from sim import shapes
 
@@ -124,6 +124,7 @@ def test_warp_loss_is_zero_for_the_true_homography(rng):
 
 def test_magicwarp_api_and_iterations(rng):
     warp = MagicWarp.pretrained()
+    assert warp.net.config == MagicWarpConfig()  # training with no shape options trains what ships
     a = rng.uniform([0, 0], [159, 119], (40, 2))
     b = a + [4.0, 0.0]
     H1 = warp.estimate(a, b, (120, 160))
