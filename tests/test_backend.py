@@ -4,7 +4,7 @@ import pytest
 from backend import drift, relpose
 from backend.graph import PoseGraph
 from backend.odometry import Odometry, OdometryConfig
-from backend.run import make_tracker, run_frames, simulate, simulated_frames
+from backend.run import make_tracker, matrix_lines, pipeline_matrix, run_frames, simulate, simulated_frames
 from frontend.tracking import OracleTracker, Truth
 from sim.camera import intrinsics, invert, pose, project, transform
 from sim.scenario import Scenario, ScenarioConfig
@@ -120,6 +120,15 @@ def test_plane_scale_needs_no_ground_truth_steps():
     assert drift.ate_rmse(estimate, truth) < 1e-3
     with pytest.raises(ValueError, match="distance"):
         Odometry(OracleTracker(), OdometryConfig(scale="plane"))
+
+
+def test_pipeline_matrix_averages_its_seeds_and_keeps_each():
+    rows = pipeline_matrix(("plane",), ("oracle",), (0.0,), frames=8, seeds=(0, 3), progress=False)
+    assert len(rows) == 1 and rows[0]["seeds"] == [0, 3]
+    per_seed = rows[0]["ate_se3_per_seed"]
+    assert len(per_seed) == 2 and per_seed[0] != per_seed[1]  # different seeds are different runs
+    assert rows[0]["ate_se3"] == pytest.approx(np.mean(per_seed))
+    assert any(line.split()[-2:] == [f"{v:.4f}" for v in per_seed] for line in matrix_lines(rows))
 
 
 def test_make_tracker_sets_the_oracle_pixel_noise():
