@@ -183,20 +183,20 @@ def pipeline_matrix(worlds: tuple[str, ...] = ("plane", "room"), frontends: tupl
     if not (worlds and frontends and noises and seeds):
         raise ValueError("the drift matrix needs at least one world, front-end, noise magnitude and seed")
     cells = [(world, noise, frontend) for world in worlds for noise in noises for frontend in frontends]
-    bar = tqdm(total=len(cells) * len(seeds), unit="run", disable=not progress, dynamic_ncols=True)
     rows = []
-    for world, noise, frontend in cells:
-        runs = []
-        for seed in seeds:
-            bar.set_description(f"{world} noise {noise:g} {frontend} seed {seed}")
-            runs.append(simulate(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, noise=noise, seed=seed),
-                                 frontend, OdometryConfig(scale=scale), progress=False, detector_scale=detector_scale)["drift"])
-            bar.update(1)
-        rows.append({"world": world, "noise": noise, "frontend": frontend, "scale": scale,
-                     **{k: float(np.mean([r[k] for r in runs])) for k in ("ate_se3", "ate_sim3", "rpe_trans",
-                                                                          "rpe_rot_deg", "final_drift_pct")},
-                     "seeds": list(seeds), "ate_se3_per_seed": [r["ate_se3"] for r in runs]})
-    bar.close()
+    with tqdm(total=len(cells) * len(seeds), unit="run", disable=not progress, dynamic_ncols=True) as bar:
+        for world, noise, frontend in cells:
+            runs = []
+            for seed in seeds:
+                bar.set_description(f"{world} noise {noise:g} {frontend} seed {seed}")
+                scenario = ScenarioConfig(world=world, trajectory=trajectory, frames=frames, noise=noise, seed=seed)
+                runs.append(simulate(scenario, frontend, OdometryConfig(scale=scale), progress=False,
+                                     detector_scale=detector_scale)["drift"])
+                bar.update(1)
+            rows.append({"world": world, "noise": noise, "frontend": frontend, "scale": scale,
+                         **{k: float(np.mean([r[k] for r in runs])) for k in ("ate_se3", "ate_sim3", "rpe_trans",
+                                                                              "rpe_rot_deg", "final_drift_pct")},
+                         "seeds": list(seeds), "ate_se3_per_seed": [r["ate_se3"] for r in runs]})
     return rows
 
 

@@ -306,17 +306,22 @@ def build_parser() -> argparse.ArgumentParser:
                            "as the paper's Static Corners; the JSON is then named realimages_jitterPX)")
     real.set_defaults(func=_eval_realimages)
     matrix = evals.add_parser("pipeline", help="drift over worlds x front-ends x noise (averaged over seeds)")
-    matrix.add_argument("--worlds", nargs="+", choices=("plane", "room"), default=["plane", "room"], help="worlds")
+    matrix.add_argument("--worlds", nargs="+", choices=("plane", "room"), default=["plane", "room"],
+                        help="simulated worlds: plane (one textured wall) and/or room (walls, floor, boxes)")
     matrix.add_argument("--frontends", nargs="+", choices=("oracle", "magic", "classical"),
-                        default=["oracle", "magic", "classical"], help="front-ends")
-    matrix.add_argument("--noise", nargs="+", type=float, default=[0.0, 1.0], help="noise magnitudes s")
+                        default=["oracle", "magic", "classical"],
+                        help="front-ends to compare (oracle: true projections with 0.5 px noise, the reference)")
+    matrix.add_argument("--noise", nargs="+", type=float, default=[0.0, 1.0],
+                        help="photometric noise magnitudes s to run each at (0 clean, 1 full, as `deepslam run --noise`)")
     matrix.add_argument("--frames", type=int, default=60, help="frames per run")
     matrix.add_argument("--seeds", type=int, default=6, help="runs per cell (seeds 0..N-1; the worlds differ by seed: textures, layout)")
-    matrix.add_argument("--scale", choices=("gt", "plane"), default="gt", help="scale method")
+    matrix.add_argument("--scale", choices=("gt", "plane"), default="gt",
+                        help="monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane")
     matrix.add_argument("--detector-scale", type=int, choices=(1, 2), default=2,
                         help="MagicPoint detects on the image enlarged this many times (magic front-end, as in `deepslam run`)")
     matrix.add_argument("--trajectory", choices=("circle", "figure8", "line", "random"), default="circle", help="camera path")
-    matrix.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON")
+    matrix.add_argument("--out", type=Path, default=Path("out/eval"),
+                        help="folder for pipeline.json (the table, with per-seed ATE, is printed too)")
     matrix.set_defaults(func=_eval_pipeline)
 
     bench = commands.add_parser("bench", help="timings on one CPU thread, beside the paper's")
