@@ -78,10 +78,14 @@ class World:
             u = hit @ surface.axis_u / (surface.axis_u @ surface.axis_u)
             v = hit @ surface.axis_v / (surface.axis_v @ surface.axis_v)
             mask = (t > 1e-3) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1) & (t < depth)
+            rows, cols = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+            if not len(rows):
+                continue
+            box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]  # sample the texture only where the surface shows
             th, tw = surface.texture.shape
-            sampled = cv2.remap(surface.texture, (u * (tw - 1)).astype(np.float32), (v * (th - 1)).astype(np.float32),
-                                cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-            image[mask], depth[mask] = sampled[mask], t[mask]
+            sampled = cv2.remap(surface.texture, (u[box] * (tw - 1)).astype(np.float32),
+                                (v[box] * (th - 1)).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            image[box][mask[box]], depth[mask] = sampled[mask[box]], t[mask]
         image = np.clip(image * light, 0, 255).astype(np.uint8)
         if noise_s > 0:
             image = noise_module.apply(image, rng if rng is not None else np.random.default_rng(0), noise_s)
