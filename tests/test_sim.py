@@ -142,3 +142,28 @@ def test_look_at_keeps_world_up_at_the_top_of_the_image():
     K = intrinsics((120, 160))
     (above, right), _ = project(transform(invert(T_world_cam), np.array([[0.0, 0, 1], [1.0, 0, 0]])), K)
     assert above[1] < K[1, 2] and right[0] > K[0, 2]  # world up is image up, world +x (to the right) is image right
+
+
+def test_world_render_samples_textures_by_ray_casting_with_occlusion():
+    from sim.world import Surface, World
+    K = np.array([[80.0, 0, 79.5], [0, 80.0, 59.5], [0, 0, 1]])
+    cols, rows = np.meshgrid(np.arange(100), np.arange(51))
+    ramp = (cols + rows).astype(np.uint8)  # linear in the texel position: bilinear sampling is exact
+    far = Surface(np.array([-1.0, -0.5, 2.0]), np.array([2.0, 0, 0]), np.array([0, 1.0, 0]), ramp)  # z = 2
+    near = Surface(np.array([0.0, -0.1, 1.0]), np.array([0.2, 0, 0]), np.array([0, 0.2, 0]), np.full((8, 8), 250, np.uint8))
+    landmarks = np.array([[-0.5, 0.0, 2.0], [0.1, 0.0, 2.0], [3.0, 0.0, 2.0]])  # seen, behind the near square, out of view
+    world = World("test", [far, near], landmarks)
+    frame = world.render(np.eye(4), K, (120, 160))  # the camera at the origin looking along +z
+    x, y = np.meshgrid(np.arange(160.0), np.arange(120.0))
+    X, Y = (x - 79.5) / 80 * 2, (y - 59.5) / 80 * 2  # where each pixel's ray meets z = 2
+    on_far = (np.abs(X) <= 1) & (np.abs(Y) <= 0.5)
+    on_near = (X / 2 >= 0) & (X / 2 <= 0.2) & (Y / 2 >= -0.1) & (Y / 2 <= 0.1)
+    expected = np.floor((X + 1) / 2 * 99 + (Y + 0.5) * 50 + 1e-3)
+    only_far = on_far & ~on_near
+    assert 0 < only_far.mean() < 0.5  # the wall is partly in view, so the test covers its edges
+    assert np.abs(frame.image[only_far] - expected[only_far]).max() <= 1
+    np.testing.assert_allclose(frame.depth[only_far], 2.0, rtol=1e-5)
+    assert np.all(frame.image[on_near] == 250) and np.allclose(frame.depth[on_near], 1.0, rtol=1e-5)
+    assert np.all(frame.image[~on_far & ~on_near] == 0) and np.all(np.isinf(frame.depth[~on_far & ~on_near]))
+    assert frame.landmark_ids.tolist() == [0]
+    np.testing.assert_allclose(frame.landmark_pixels, [[79.5 - 20, 59.5]])
