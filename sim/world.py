@@ -85,7 +85,8 @@ class World:
             th, tw = surface.texture.shape
             sampled = cv2.remap(surface.texture, (u[box] * (tw - 1)).astype(np.float32),
                                 (v[box] * (th - 1)).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-            image[box][mask[box]], depth[mask] = sampled[mask[box]], t[mask]
+            shows = mask[box]
+            image[box][shows], depth[mask] = sampled[shows], t[mask]
         image = np.clip(image * light, 0, 255).astype(np.uint8)
         if noise_s > 0:
             image = noise_module.apply(image, rng if rng is not None else np.random.default_rng(0), noise_s)
