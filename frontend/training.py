@@ -167,6 +167,7 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
             with torch.no_grad():
                 figures = {"step": step, "wall_s": round(time.time() - started, 1), **validate_fn(scored)}
             history.append(figures)
+            (out_dir / "history.json").write_text(json.dumps(history, indent=1))
             bar.write(json.dumps(figures))
             extra = {"elapsed": time.time() - started, "history": history} | ({"ema": ema.module.state_dict()} if ema else {})
             if figures[score_key] > best:
@@ -174,5 +175,4 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
                 save_checkpoint(out_dir / "best.pt", model, optimizer, step, rng, config, {"best": best, **extra})
             save_checkpoint(last, model, optimizer, step, rng, config, {"best": best, **extra})
     bar.close()
-    (out_dir / "history.json").write_text(json.dumps(history, indent=1))
     return figures

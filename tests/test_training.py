@@ -1,11 +1,13 @@
 """Smoke runs of a few iterations: the training loops run, checkpoint and resume."""
+import json
+
 import numpy as np
 import pytest
 import torch
 
 from frontend import MagicPoint, train_magicpoint, train_magicwarp
 from frontend.magicwarp import MagicWarpConfig, MagicWarpNet
-from frontend.training import export_weights, load_weights
+from frontend.training import LoopConfig, export_weights, load_weights, train
 
 
 def test_magicpoint_training_runs_and_resumes(tmp_path):
@@ -33,6 +35,20 @@ def test_magicwarp_training_runs_and_resumes(tmp_path):
     assert 0 <= figures["score"] <= 100
     state = torch.load(tmp_path / "last.pt", weights_only=False)
     assert state["step"] == 2 and "rng" in state
+
+
+def test_an_interrupted_run_keeps_its_validation_history(tmp_path):
+    model = MagicWarpNet(MagicWarpConfig(widths=(4, 4), hidden=8))
+
+    def step_fn(step, rng):
+        if step == 2:
+            raise KeyboardInterrupt  # killed during the third step, after two validations
+        return {"loss": sum(p.sum() for p in model.parameters()) * 0.0}
+
+    with pytest.raises(KeyboardInterrupt):
+        train(model, LoopConfig(iterations=5, validate_every=1), tmp_path, step_fn, lambda m: {"score": 1.0}, "score")
+    assert [row["step"] for row in json.loads((tmp_path / "history.json").read_text())] == [1, 2]
+    assert torch.load(tmp_path / "last.pt", weights_only=False)["step"] == 2
 
 
 def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
