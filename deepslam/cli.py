@@ -259,7 +259,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--noise", type=float, default=0.0, help="photometric noise magnitude s (0 clean, 1 full, 2 random)")
     run.add_argument("--lighting", type=float, default=0.0, help="amplitude of a slow global brightness change (0.3 = 30%%)")
     run.add_argument("--size", type=int, nargs=2, default=(120, 160), metavar=("H", "W"), help="image size, multiples of 8")
-    run.add_argument("--seed", type=int, default=0, help="seed of the world, trajectory and noise")
+    run.add_argument("--seed", type=int, default=0,
+                     help="seed of the world, the image noise and the random trajectory (circle, figure8 and line "
+                          "are fixed paths)")
     run.add_argument("--out", type=Path, default=Path("out/run.mcap"), help="MCAP log to write")
     _pipeline_options(run, ("magic", "classical", "oracle"))
     run.set_defaults(func=_run)
