@@ -13,6 +13,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
     config = TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
                          motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
+                         loss_weighting=args.loss_weighting,
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
     shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden}
     run(args.out, config, MagicWarpConfig(**{name: value for name, value in shape.items() if value is not None}))
@@ -235,6 +236,10 @@ def build_parser() -> argparse.ArgumentParser:
                       metavar=("TRANSLATION", "ROTATION", "ZOOM", "JITTER"),
                       help="ranges of the 2D homography pairs at full motion: translation and corner jitter as shares "
                            "of the image size, rotation in radians, zoom as +- a share")
+    warp.add_argument("--loss-weighting", choices=("matches", "pairs"), default="matches",
+                      help="how the pairs of a batch weigh in the loss: matches (the paper's sum over true matches: "
+                           "a dense pair weighs more) or pairs (each pair's mean error, so a sparse pair weighs as "
+                           "much as a dense one, as in the breakdown evaluation)")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")

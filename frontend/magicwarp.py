@@ -61,15 +61,27 @@ def normalizer(size: tuple[int, int]) -> np.ndarray:
     return np.array([[2 / (w - 1), 0, -1], [0, 2 / (h - 1), -1], [0, 0, 1]])
 
 
-def warp_loss(H: torch.Tensor, true_a: torch.Tensor, true_b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean over true matches of ||H x_a - x_b||^2 in normalised coordinates.
+LOSS_WEIGHTINGS = ("matches", "pairs")
+
+
+def warp_loss(H: torch.Tensor, true_a: torch.Tensor, true_b: torch.Tensor, mask: torch.Tensor,
+              weighting: str = "matches") -> torch.Tensor:
+    """||H x_a - x_b||^2 in normalised coordinates, averaged over the batch's true matches.
 
     H (B, 3, 3); true_a, true_b (B, M, 2); mask (B, M) bool marks real (not padding) matches.
+    ``weighting`` "matches" (the paper's sum over matches) lets a pair weigh as much as it has matches;
+    "pairs" averages within each pair first, so every pair weighs the same, as in the breakdown
+    experiment, where a sparse pair counts as much as a dense one.
     """
+    if weighting not in LOSS_WEIGHTINGS:
+        raise ValueError(f"unknown loss weighting {weighting!r}; expected one of {', '.join(LOSS_WEIGHTINGS)}")
     projected = true_a @ H[:, :2, :2].transpose(1, 2) + H[:, None, :2, 2]
     depth = true_a @ H[:, 2:, :2].transpose(1, 2) + H[:, None, 2:, 2]
-    error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1)
-    return (error * mask).sum() / mask.sum().clamp(min=1)
+    error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1) * mask
+    if weighting == "matches":
+        return error.sum() / mask.sum().clamp(min=1)
+    counts = mask.sum(1)
+    return (error.sum(1) / counts.clamp(min=1)).sum() / (counts > 0).sum().clamp(min=1)
 
 
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:

@@ -31,6 +31,7 @@ class TrainConfig(LoopConfig):
     motion_max: float = 1.0
     geometry_weights: tuple[float, ...] = (0.2, 0.075, 0.075, 0.15, 0.5)  # in the order of sim.pointclouds.GEOMETRIES
     max_matches: int = 128          # true matches per pair used by the loss
+    loss_weighting: str = "matches"  # how pairs weigh in a batch's loss (frontend.magicwarp.LOSS_WEIGHTINGS)
     homography: tuple[float, float, float, float] = (0.3, np.pi / 4, 0.35, 0.1)  # 2D pairs at motion 1: translation
     # (share of the image size), rotation (rad), zoom (+-share), corner jitter (share of the image size)
 
@@ -72,6 +73,6 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
     def step_fn(step: int, rng: np.random.Generator) -> dict:
         motion = motion_at(config, step)
         cells, true_a, true_b, mask = make_batch(rng, config, replace(pairs, motion=motion))
-        return {"loss": warp_loss(model(cells), true_a, true_b, mask), "motion": torch.tensor(motion)}
+        return {"loss": warp_loss(model(cells), true_a, true_b, mask, config.loss_weighting), "motion": torch.tensor(motion)}
 
     return train(model, config, out_dir, step_fn, lambda m: validation_figures(m, validation), "score")

@@ -122,6 +122,21 @@ def test_warp_loss_is_zero_for_the_true_homography(rng):
     assert warp_loss(torch.eye(3)[None], a, moved, mask) > 1e-4
 
 
+def test_warp_loss_weighs_matches_or_pairs():
+    """Pair 0 has 1 match with squared error 4, pair 1 has 3 matches with squared error 1 each."""
+    identity = torch.eye(3).repeat(2, 1, 1)
+    true_a = torch.zeros(2, 4, 2)
+    true_b = torch.tensor([[[2.0, 0], [9, 9], [9, 9], [9, 9]], [[1, 0], [0, 1], [-1, 0], [9, 9]]])
+    mask = torch.tensor([[True, False, False, False], [True, True, True, False]])
+    assert warp_loss(identity, true_a, true_b, mask) == pytest.approx((4 + 3) / 4)
+    assert warp_loss(identity, true_a, true_b, mask, "pairs") == pytest.approx((4 + 1) / 2)
+    empty = mask.clone()
+    empty[0] = False  # a pair without true matches does not count
+    assert warp_loss(identity, true_a, true_b, empty, "pairs") == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="unknown loss weighting"):
+        warp_loss(identity, true_a, true_b, mask, "points")
+
+
 def test_magicwarp_api_and_iterations(rng):
     warp = MagicWarp.pretrained()
     assert warp.net.config == MagicWarpConfig()  # training with no shape options trains what ships
