@@ -13,7 +13,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
     config = TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
                          motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
-                         loss_weighting=args.loss_weighting,
+                         loss_weighting=args.loss_weighting, max_extra=args.max_extra,
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
     shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden}
     run(args.out, config, MagicWarpConfig(**{name: value for name, value in shape.items() if value is not None}))
@@ -240,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="how the pairs of a batch weigh in the loss: matches (the paper's sum over true matches: "
                            "a dense pair weighs more) or pairs (each pair's mean error, so a sparse pair weighs as "
                            "much as a dense one, as in the breakdown evaluation)")
+    warp.add_argument("--max-extra", type=float, default=0.5, metavar="SHARE",
+                      help="each image of a pair gets a random share, up to this one, of its point count in spurious "
+                           "random points (default 0.5; the breakdown evaluation adds 0, 20 or 40%% to image B)")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")

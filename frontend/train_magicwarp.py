@@ -7,14 +7,14 @@ random homographies rather than the loss alone.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from frontend.cells import points_to_cells_batch
-from frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
+from frontend.magicwarp import LOSS_WEIGHTINGS, MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
 from frontend.nets import read_weights
 from frontend.training import LoopConfig, train
 from sim.homography import HomographyConfig
@@ -34,6 +34,18 @@ class TrainConfig(LoopConfig):
     loss_weighting: str = "matches"  # how pairs weigh in a batch's loss (frontend.magicwarp.LOSS_WEIGHTINGS)
     homography: tuple[float, float, float, float] = (0.3, np.pi / 4, 0.35, 0.1)  # 2D pairs at motion 1: translation
     # (share of the image size), rotation (rad), zoom (+-share), corner jitter (share of the image size)
+    max_extra: float = 0.5          # up to this fraction of spurious points added to each image of a pair
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.loss_weighting not in LOSS_WEIGHTINGS:
+            raise ValueError(f"--loss-weighting must be one of {', '.join(LOSS_WEIGHTINGS)}, got {self.loss_weighting!r}")
+        self.pairs()  # raises on bad pair options
+
+    def pairs(self, motion: float = 1.0) -> PairConfig:
+        """The training pairs' configuration at curriculum ``motion``."""
+        return PairConfig(motion=motion, geometry_weights=tuple(self.geometry_weights),
+                          homography=HomographyConfig(*self.homography), max_extra=self.max_extra)
 
 
 def motion_at(config: TrainConfig, step: int) -> float:
@@ -67,12 +79,11 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
     if (out_dir / "last.pt").exists():
         model_config = MagicWarpConfig(**read_weights(out_dir / "last.pt")[0])
     model = MagicWarpNet(model_config)
-    pairs = PairConfig(geometry_weights=tuple(config.geometry_weights), homography=HomographyConfig(*config.homography))
     validation = validation_set(seed=config.seed + 1000)
 
     def step_fn(step: int, rng: np.random.Generator) -> dict:
         motion = motion_at(config, step)
-        cells, true_a, true_b, mask = make_batch(rng, config, replace(pairs, motion=motion))
+        cells, true_a, true_b, mask = make_batch(rng, config, config.pairs(motion))
         return {"loss": warp_loss(model(cells), true_a, true_b, mask, config.loss_weighting), "motion": torch.tensor(motion)}
 
     return train(model, config, out_dir, step_fn, lambda m: validation_figures(m, validation), "score")

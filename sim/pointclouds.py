@@ -43,6 +43,14 @@ class PairConfig:
     homography: HomographyConfig = HomographyConfig(translation=0.3, rotation=np.pi / 4, scale=0.35,
                                                     perspective=0.1)  # "homography" pairs at motion 1
 
+    def __post_init__(self):
+        weights = self.geometry_weights
+        if len(weights) != len(GEOMETRIES) or min(weights) < 0 or sum(weights) <= 0:
+            raise ValueError(f"geometry_weights needs {len(GEOMETRIES)} non-negative weights, not all zero "
+                             f"({', '.join(GEOMETRIES)}), got {tuple(weights)}")
+        if not 0 <= self.max_extra <= 1:
+            raise ValueError(f"max_extra must lie in [0, 1], got {self.max_extra}")
+
 
 @dataclass
 class PointPair:
@@ -96,8 +104,6 @@ def _cast(rays: np.ndarray, rng: np.random.Generator, geometry: str, depth: floa
 def sample_pair(rng: np.random.Generator, config: PairConfig = PairConfig(), geometry: str | None = None) -> PointPair:
     """One training pair (see module docstring); ``geometry`` in ``GEOMETRIES`` or random."""
     weights = np.asarray(config.geometry_weights, np.float64)
-    if len(weights) != len(GEOMETRIES) or weights.min() < 0 or weights.sum() <= 0:
-        raise ValueError(f"geometry_weights needs {len(GEOMETRIES)} non-negative weights ({', '.join(GEOMETRIES)})")
     for _ in range(100):
         kind = geometry or str(rng.choice(GEOMETRIES, p=weights / weights.sum()))
         count = int(np.exp(rng.uniform(np.log(config.points[0]), np.log(config.points[1] + 1))))

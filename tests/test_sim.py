@@ -99,7 +99,20 @@ def test_point_cloud_pairs_are_consistent(rng):
         assert len(pair.true_a) == len(pair.true_b) >= 4
         assert np.all((pair.points_b >= -0.5) & (pair.points_b <= [159.5, 119.5]))
     with pytest.raises(ValueError, match="geometry_weights"):
-        sample_pair(rng, PairConfig(geometry_weights=(1.0, 0.0, 0.0, 0.0)))
+        PairConfig(geometry_weights=(1.0, 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="max_extra"):
+        PairConfig(max_extra=1.5)
+
+
+def test_spurious_points_grow_with_max_extra():
+    """The same seeds draw the same pairs; spurious points come last, so only image B's count grows."""
+    def counts(max_extra):
+        pairs = [sample_pair(np.random.default_rng([3, i]), PairConfig(max_extra=max_extra), "homography")
+                 for i in range(20)]
+        return np.array([len(p.points_b) for p in pairs]), np.array([len(p.true_b) for p in pairs])
+    (none, true_none), (many, true_many) = counts(0.0), counts(1.0)
+    assert np.array_equal(true_none, true_many)
+    assert np.all(many >= none) and many.sum() > 1.3 * none.sum()
 
 
 @pytest.mark.parametrize("geometry", ["plane", "homography"])
