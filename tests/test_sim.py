@@ -105,7 +105,8 @@ def test_point_cloud_pairs_are_consistent(rng):
 
 
 def test_spurious_points_grow_with_max_extra():
-    """The same seeds draw the same pairs; spurious points come last, so only image B's count grows."""
+    """The same seeds draw the same pairs: spurious points are drawn last, so the true matches stay and
+    image B only gains points."""
     def counts(max_extra):
         pairs = [sample_pair(np.random.default_rng([3, i]), PairConfig(max_extra=max_extra), "homography")
                  for i in range(20)]

@@ -40,7 +40,7 @@ def test_magicwarp_training_runs_and_resumes(tmp_path):
 @pytest.mark.parametrize("options, message", [({"loss_weighting": "points"}, "--loss-weighting"),
                                               ({"geometry_weights": (0, 0, 0, 0, 0)}, "geometry_weights"),
                                               ({"max_extra": -0.1}, "max_extra"), ({"lr": 0}, "--lr")])
-def test_magicwarp_training_options_fail_before_any_work(tmp_path, options, message):
+def test_magicwarp_training_options_fail_before_any_work(options, message):
     with pytest.raises(ValueError, match=message):
         train_magicwarp.TrainConfig(**options)
 
