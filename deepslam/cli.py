@@ -194,6 +194,17 @@ def _pipeline_options(parser: argparse.ArgumentParser, frontends: tuple[str, ...
                         help="standard deviation (px) of the Gaussian noise on the oracle's true projections")
 
 
+def _share(text: str) -> float:
+    """An argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be a number in [0, 1], got {text!r}")
+    return value
+
+
 def _common_training_options(parser: argparse.ArgumentParser, iterations: int, batch: int, lr: float) -> None:
     parser.add_argument("--iterations", type=int, default=iterations, help="total optimisation steps")
     parser.add_argument("--batch", type=int, default=batch, help="examples per step")
@@ -240,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="how the pairs of a batch weigh in the loss: matches (the paper's sum over true matches: "
                            "a dense pair weighs more) or pairs (each pair's mean error, so a sparse pair weighs as "
                            "much as a dense one, as in the breakdown evaluation)")
-    warp.add_argument("--max-extra", type=float, default=0.5, metavar="SHARE",
+    warp.add_argument("--max-extra", type=_share, default=0.5, metavar="SHARE",
                       help="each image of a pair gets a random share, up to this one, of its point count in spurious "
                            "random points (default 0.5; the breakdown evaluation adds 0, 20 or 40%% to image B)")
     warp.set_defaults(func=_train_magicwarp)
@@ -248,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")
     point.add_argument("--out", type=Path, default=None, help="checkpoint folder (default runs/magicpoint_VARIANT)")
     _common_training_options(point, iterations=8000, batch=32, lr=1e-3)
-    point.add_argument("--clean-share", type=float, default=0.0,
+    point.add_argument("--clean-share", type=_share, default=0.0,
                        help="share (0-1) of training images left without photometric noise (default 0: all noisy)")
     point.add_argument("--validation-per-category", type=int, default=20,
                        help="validation images per Synthetic Shapes category (each scored clean and noisy)")

@@ -52,6 +52,14 @@ def test_bad_input_gets_a_clear_error(tmp_path, capsys):
                            "--iterations must be at least 1, got 0; --ema must lie in [0, 1)")]:
         assert main(argv) == 2
         assert message in capsys.readouterr().err
+    for argv, message in [(["train", "magicwarp", "--max-extra", "1.5", "--out", folder],
+                           "argument --max-extra: must be a number in [0, 1], got '1.5'"),
+                          (["train", "magicpoint", "--clean-share", "half", "--out", folder],
+                           "argument --clean-share: must be a number in [0, 1], got 'half'")]:
+        with pytest.raises(SystemExit) as exit_info:  # argparse rejects these before any work starts
+            main(argv)
+        assert exit_info.value.code == 2
+        assert message in capsys.readouterr().err
     assert not (tmp_path / "r.mcap").exists() and not (tmp_path / "eval").exists()  # bad input leaves nothing behind
 
 
