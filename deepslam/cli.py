@@ -15,7 +15,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
                          loss_weighting=args.loss_weighting, max_extra=args.max_extra,
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
-    shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden}
+    shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden, "blocks": args.blocks}
     run(args.out, config, MagicWarpConfig(**{name: value for name, value in shape.items() if value is not None}))
 
 
@@ -238,8 +238,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help="how often each kind of pair is drawn: point clouds seen by two cameras (plane, sphere, "
                            "cube, mixed scene) or image points moved by a random 2D homography")
     warp.add_argument("--widths", type=int, nargs="+", default=None,
-                      help="encoder widths, two VGG blocks per 2x2 max-pool (default: the shipped network's, "
+                      help="encoder widths, --blocks VGG blocks per 2x2 max-pool (default: the shipped network's, "
                            "64 64 128 128 128 128; a new run only, a resumed run keeps its own)")
+    warp.add_argument("--blocks", type=int, default=None,
+                      help="VGG blocks per stage of the encoder (default: the shipped network's, 2). With --init, "
+                           "weights of fewer blocks per stage are deepened: the new blocks start as identities")
     warp.add_argument("--hidden", type=int, default=None,
                       help="width of the hidden fully connected layer (default: the shipped network's, 512; "
                            "a new run only, a resumed run keeps its own)")

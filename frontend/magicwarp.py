@@ -17,16 +17,20 @@ WEIGHTS = Path(__file__).parent / "weights"
 
 @dataclass(frozen=True)
 class MagicWarpConfig:
-    """Encoder widths (two VGG blocks per stage, a 2x2 max-pool after each stage), the grid the
-    features are pooled to before the fully connected layers, and the hidden FC width."""
+    """Encoder widths (``blocks`` VGG blocks per stage, a 2x2 max-pool after each stage), the grid
+    the features are pooled to before the fully connected layers, and the hidden FC width."""
 
     widths: tuple[int, ...] = (64, 64, 128, 128, 128, 128)  # the shipped network's shape
     pooled: tuple[int, int] = (3, 5)
     hidden: int = 512
+    blocks: int = 2
 
     def __post_init__(self):
         if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:
             raise ValueError(f"MagicWarp needs positive widths, pooled grid and hidden width, got {self}")
+        if self.blocks < 1 or len(self.widths) % self.blocks:
+            raise ValueError(f"MagicWarp needs a whole number of stages of at least one block: {len(self.widths)} "
+                             f"widths do not make stages of {self.blocks} blocks")
 
 
 class MagicWarpNet(nn.Module):
@@ -37,8 +41,8 @@ class MagicWarpNet(nn.Module):
         super().__init__()
         self.config = config
         layers, channels = [], 2 * (CELL * CELL + 1)
-        for stage in range(0, len(config.widths), 2):
-            for width in config.widths[stage:stage + 2]:
+        for stage in range(0, len(config.widths), config.blocks):
+            for width in config.widths[stage:stage + config.blocks]:
                 layers.append(vgg_block(channels, width))
                 channels = width
             layers.append(nn.MaxPool2d(2))
@@ -53,6 +57,47 @@ class MagicWarpNet(nn.Module):
     def forward(self, cells: torch.Tensor) -> torch.Tensor:
         H = self.head(self.encoder(cells)).view(-1, 3, 3)
         return H / H[:, 2:3, 2:3]
+
+    @staticmethod
+    def deepened(config: MagicWarpConfig, weights: dict, blocks: int) -> tuple[MagicWarpConfig, dict]:
+        """The config and state dict of the network ``config`` with ``blocks`` VGG blocks per stage.
+
+        Each stage keeps its blocks and gains new ones of its last width after them, each passing its
+        input through: an identity 3x3 convolution, then a BatchNorm whose scale and shift undo its own
+        normalisation of the input statistics the previous BatchNorm implies (mean and variance of a
+        rectified Gaussian of that BatchNorm's shift and scale). The deeper network computes the same
+        function in eval mode and nearly the same while training (batch statistics).
+        """
+        if blocks < config.blocks:
+            raise ValueError(f"cannot remove blocks ({config.blocks} per stage) and keep the function")
+        old, stages = config.blocks, len(config.widths) // config.blocks
+        grown = {name: tensor for name, tensor in weights.items() if not name.startswith("encoder.")}
+        widths = []
+        for stage in range(stages):
+            stage_widths = list(config.widths[stage * old:(stage + 1) * old])
+            widths += stage_widths + stage_widths[-1:] * (blocks - old)
+            for block in range(blocks):
+                source, target = f"encoder.{stage * (old + 1) + min(block, old - 1)}.", f"encoder.{stage * (blocks + 1) + block}."
+                layer = {name[len(source):]: tensor for name, tensor in weights.items() if name.startswith(source)}
+                if block >= old:
+                    layer = _identity_block(layer["1.weight"], layer["1.bias"])
+                grown.update({target + name: tensor for name, tensor in layer.items()})
+        return MagicWarpConfig(tuple(widths), config.pooled, config.hidden, blocks), grown
+
+
+def _identity_block(scale: torch.Tensor, shift: torch.Tensor, eps: float = 1e-5) -> dict:
+    """State dict of a VGG block of ``len(scale)`` channels that passes on the output of a block whose
+    BatchNorm has ``scale`` and ``shift``: ReLU of roughly N(shift, scale^2) per channel. ``eps`` is
+    BatchNorm2d's default."""
+    width = len(scale)
+    conv = torch.zeros(width, width, 3, 3)
+    conv[:, :, 1, 1] = torch.eye(width)
+    ratio = shift / scale.abs().clamp(min=1e-6)
+    below, density = torch.special.ndtr(ratio), torch.exp(-ratio ** 2 / 2) / np.sqrt(2 * np.pi)
+    mean = shift * below + scale.abs() * density
+    variance = ((shift ** 2 + scale ** 2) * below + shift * scale.abs() * density - mean ** 2).clamp(min=0)
+    return {"0.weight": conv, "0.bias": torch.zeros(width), "1.weight": torch.sqrt(variance + eps), "1.bias": mean,
+            "1.running_mean": mean.clone(), "1.running_var": variance, "1.num_batches_tracked": torch.tensor(0)}
 
 
 def normalizer(size: tuple[int, int]) -> np.ndarray:

@@ -21,6 +21,13 @@ class TrainConfig(LoopConfig):
     validation_per_category: int = 20
     clean_share: float = 0.0  # share of training images left without photometric noise
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.variant not in VARIANTS:
+            raise ValueError(f"--variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
+        if not 0 <= self.clean_share <= 1:
+            raise ValueError(f"--clean-share must lie in [0, 1], got {self.clean_share}")
+
 
 def cell_labels(corners: list[np.ndarray], size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     """Cell class targets int64 (B, H/8, W/8): the position (0..63) of a corner in its 8x8 cell, a

@@ -82,21 +82,35 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
     return kept
 
 
+def _config_of(model: torch.nn.Module, saved: dict):
+    """``saved`` (a network config as a file stores it) as ``model``'s config class, with fields newer
+    than the file at their defaults; None if it is not a config of that class."""
+    try:
+        return type(model.config)(**saved)
+    except (TypeError, ValueError):
+        return None
+
+
 def load_weights(model: torch.nn.Module, path: Path) -> None:
     """Load the weights of a checkpoint or shipped file into ``model`` (its averaged weights if any).
     Weights of a network that differs only by narrower ``widths`` / ``hidden`` layers are embedded
-    (``frontend.nets.embed_weights``): the wider network starts from the same function."""
+    (``frontend.nets.embed_weights``), and a network with fewer blocks per stage is first deepened
+    (the model's ``deepened``, where it has one): the larger network starts from the same function."""
     if not Path(path).exists():
         raise FileNotFoundError(f"no weights to start from at {path}")
     config, weights = read_weights(path)
-    wanted = asdict(model.config)
-    if config == wanted:
-        model.load_state_dict(weights)
-        return
+    saved, wanted = _config_of(model, config), asdict(model.config)
     other_shape = f"{path} holds a network of another shape ({config}), not {wanted}"
-    if not {key for key in wanted if config.get(key) != wanted[key]} <= WIDENABLE:
+    if saved is None:
         raise ValueError(f"{other_shape}: its layout differs")
     try:
+        if hasattr(model, "deepened") and saved.blocks != model.config.blocks:
+            saved, weights = model.deepened(saved, weights, model.config.blocks)
+        if saved == model.config:
+            model.load_state_dict(weights)
+            return
+        if not {key for key, value in asdict(saved).items() if value != wanted[key]} <= WIDENABLE:
+            raise ValueError("its layout differs")
         embed_weights(model, weights)
     except ValueError as error:
         raise ValueError(f"{other_shape}: {error}") from None
@@ -130,7 +144,7 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
     last = out_dir / "last.pt"
     if last.exists():
         state = torch.load(last, map_location="cpu", weights_only=False)
-        if network_config(state) != asdict(model.config):
+        if _config_of(model, network_config(state)) != model.config:
             raise ValueError(f"{last} holds a network of another shape ({network_config(state)}), not "
                              f"{asdict(model.config)}: resume it with its own options, or train into another folder")
         model.load_state_dict(state["model"])

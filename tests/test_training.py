@@ -37,12 +37,14 @@ def test_magicwarp_training_runs_and_resumes(tmp_path):
     assert state["step"] == 2 and "rng" in state
 
 
-@pytest.mark.parametrize("options, message", [({"loss_weighting": "points"}, "--loss-weighting"),
-                                              ({"geometry_weights": (0, 0, 0, 0, 0)}, "geometry_weights"),
-                                              ({"max_extra": -0.1}, "max_extra"), ({"lr": 0}, "--lr")])
-def test_magicwarp_training_options_fail_before_any_work(options, message):
+@pytest.mark.parametrize("trainer, options, message", [
+    (train_magicwarp, {"loss_weighting": "points"}, "--loss-weighting"),
+    (train_magicwarp, {"geometry_weights": (0, 0, 0, 0, 0)}, "geometry_weights"),
+    (train_magicwarp, {"max_extra": -0.1}, "max_extra"), (train_magicwarp, {"lr": 0}, "--lr"),
+    (train_magicpoint, {"clean_share": 1.5}, "--clean-share"), (train_magicpoint, {"variant": "M"}, "--variant")])
+def test_training_options_fail_before_any_work(trainer, options, message):
     with pytest.raises(ValueError, match=message):
-        train_magicwarp.TrainConfig(**options)
+        trainer.TrainConfig(**options)
 
 
 def test_an_interrupted_run_keeps_its_validation_history(tmp_path):
@@ -98,3 +100,29 @@ def test_init_widens_a_narrower_network_without_changing_what_it_computes(tmp_pa
         MagicWarpConfig(widths=(8, 0))
     with pytest.raises(ValueError, match="another shape"):  # nor can another layout
         load_weights(MagicWarpNet(MagicWarpConfig(widths=(8, 8, 16, 16), pooled=(2, 2), hidden=16)), weights)
+
+
+def test_init_deepens_a_network_with_identity_blocks(tmp_path):
+    shallow = MagicWarpConfig(widths=(8, 8, 16, 16), hidden=16)
+    train_magicwarp.run(tmp_path / "shallow", train_magicwarp.TrainConfig(iterations=3, batch=4, validate_every=3), shallow)
+    state = torch.load(tmp_path / "shallow" / "last.pt", weights_only=False)
+    del state["config"]["blocks"]  # as saved before the field existed: it takes its default
+    torch.save(state, tmp_path / "older.pt")
+    (tmp_path / "older").mkdir()
+    torch.save(state, tmp_path / "older" / "last.pt")
+    train_magicwarp.run(tmp_path / "older", train_magicwarp.TrainConfig(iterations=4, batch=4, validate_every=4))
+    assert torch.load(tmp_path / "older" / "last.pt", weights_only=False)["step"] == 4  # resumed
+    cells = (torch.rand(3, 130, 15, 20) < 0.1).float()
+    start = MagicWarpNet(shallow).eval()
+    load_weights(start, tmp_path / "older.pt")
+    for deeper in (MagicWarpConfig(widths=(8, 8, 8, 16, 16, 16), hidden=16, blocks=3),
+                   MagicWarpConfig(widths=(8, 8, 8, 8, 16, 16, 24, 24), hidden=32, blocks=4)):  # deeper and wider
+        grown = MagicWarpNet(deeper).eval()
+        load_weights(grown, tmp_path / "older.pt")
+        assert torch.allclose(grown(cells), start(cells), atol=1e-5)
+    grown.train()  # with batch statistics the identity blocks are close to, not exactly, identities
+    assert (grown(cells) - start.train()(cells)).abs().max() < 0.1
+    with pytest.raises(ValueError, match="cannot remove blocks"):
+        load_weights(MagicWarpNet(MagicWarpConfig(widths=(8, 16), hidden=16, blocks=1)), tmp_path / "older.pt")
+    with pytest.raises(ValueError, match="whole number of stages"):
+        MagicWarpConfig(widths=(8, 8, 16, 16), blocks=3)
