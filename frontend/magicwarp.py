@@ -92,10 +92,11 @@ def _identity_block(scale: torch.Tensor, shift: torch.Tensor, eps: float = 1e-5)
     width = len(scale)
     conv = torch.zeros(width, width, 3, 3)
     conv[:, :, 1, 1] = torch.eye(width)
-    ratio = shift / scale.abs().clamp(min=1e-6)
+    spread = scale.abs()
+    ratio = shift / spread.clamp(min=1e-6)
     below, density = torch.special.ndtr(ratio), torch.exp(-ratio ** 2 / 2) / np.sqrt(2 * np.pi)
-    mean = shift * below + scale.abs() * density
-    variance = ((shift ** 2 + scale ** 2) * below + shift * scale.abs() * density - mean ** 2).clamp(min=0)
+    mean = shift * below + spread * density
+    variance = ((shift ** 2 + spread ** 2) * below + shift * spread * density - mean ** 2).clamp(min=0)
     return {"0.weight": conv, "0.bias": torch.zeros(width), "1.weight": torch.sqrt(variance + eps), "1.bias": mean,
             "1.running_mean": mean.clone(), "1.running_var": variance, "1.num_batches_tracked": torch.tensor(0)}
 
