@@ -180,6 +180,9 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
             scored.eval()
             with torch.no_grad():
                 figures = {"step": step, "wall_s": round(time.time() - started, 1), **validate_fn(scored)}
+            if history and history[-1].keys() != figures.keys():
+                best = -np.inf  # a resumed run whose validation has changed: the old best does not compare
+                bar.write("the validation figures differ from the checkpoint's: best.pt restarts from here")
             history.append(figures)
             (out_dir / "history.json").write_text(json.dumps(history, indent=1))
             bar.write(json.dumps(figures))

@@ -1,9 +1,12 @@
 import numpy as np
 import pytest
+import torch
 
 from frontend.classical import ClassicalDetector
 from frontend.evaluate_detector import _jittered
-from frontend.evaluate_warp import GRIDS, PAPER, short_of_paper, table_lines
+from frontend import MagicWarp
+from frontend.evaluate_warp import GRIDS, PAPER, short_of_paper, table_lines, validation_figures, validation_set
+from frontend.magicwarp import MagicWarpConfig, MagicWarpNet
 from frontend.metrics import (average_precision, localization_error, match_detections, merge, repeatability,
                               repeatability_at_n)
 from sim.world import photo
@@ -83,3 +86,17 @@ def test_breakdown_cells_are_checked_against_the_papers_magicwarp_column():
     result["breakdown"]["medium"]["0.2"]["magicwarp"]["random_h"] = 17.71
     assert short_of_paper(result, "magicwarp") == ["medium 20% random_h 17.71<24.84"]
     assert "35 of 36 cells at or above the paper; short: medium 20% random_h 17.71<24.84" in "\n".join(table_lines(result))
+
+
+def test_warp_validation_moves_pairs_by_the_papers_breakdown_magnitudes():
+    validation = validation_set(seed=3, runs=2)
+    assert len(validation) == 36 * 2 and [motion for motion, _ in validation[:8:2]] == list(GRIDS)
+    _, first = validation[0]  # low density, no extra points, translation: the paper's 24.00 px
+    partner = first.true_index >= 0
+    np.testing.assert_allclose(first.points_b[first.true_index[partner]] - first.points_a[partner], [[24.0, 0.0]] * partner.sum())
+    identity = MagicWarpNet(MagicWarpConfig(widths=(4, 4), hidden=8))
+    torch.nn.init.zeros_(identity.head[-1].weight)  # outputs its bias: H = I, the nearest-neighbour baseline
+    identity.eval()
+    nearest, shipped = validation_figures(identity, validation), validation_figures(MagicWarp.pretrained().net, validation)
+    assert 0 <= nearest["pass@paper"] <= 100 and set(shipped) == set(nearest)
+    assert shipped["score"] > nearest["score"] + 20  # the paper's MagicWarp magnitudes are about 3x NN's breakdown

@@ -61,6 +61,20 @@ def test_an_interrupted_run_keeps_its_validation_history(tmp_path):
     assert torch.load(tmp_path / "last.pt", weights_only=False)["step"] == 2
 
 
+def test_a_resumed_run_whose_validation_changed_restarts_its_best_checkpoint(tmp_path):
+    model = MagicWarpNet(MagicWarpConfig(widths=(4, 4), hidden=8))
+
+    def step_fn(step, rng):
+        return {"loss": sum(p.sum() for p in model.parameters()) * 0.0}
+
+    train(model, LoopConfig(iterations=2, validate_every=1), tmp_path, step_fn, lambda m: {"score": 90.0}, "score")
+    def new_validation(m):  # other figures, with scores on another scale: lower than the old best
+        return {"rep@paper:rotation": 60.0, "score": 50.0}
+
+    train(model, LoopConfig(iterations=3, validate_every=1), tmp_path, step_fn, new_validation, "score")
+    assert torch.load(tmp_path / "best.pt", weights_only=False)["step"] == 3
+
+
 def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
     base = train_magicpoint.TrainConfig(iterations=1, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path / "base", base)
