@@ -13,7 +13,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
     config = TrainConfig(iterations=args.iterations, batch=args.batch, lr=args.lr, seed=args.seed,
                          motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
-                         loss_weighting=args.loss_weighting, max_extra=args.max_extra,
+                         loss_weighting=args.loss_weighting, cauchy=args.cauchy, max_extra=args.max_extra,
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
     shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden, "blocks": args.blocks}
     run(args.out, config, MagicWarpConfig(**{name: value for name, value in shape.items() if value is not None}))
@@ -254,6 +254,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="how the pairs of a batch weigh in the loss: matches (the paper's sum over true matches: "
                            "a dense pair weighs more) or pairs (each pair's mean error, so a sparse pair weighs as "
                            "much as a dense one, as in the breakdown evaluation)")
+    warp.add_argument("--cauchy", type=float, default=0.0, metavar="SCALE",
+                      help="replace each match's squared distance in the loss by the Cauchy loss of this scale, in "
+                           "normalised coordinates (0.05: about 4 px across a 160 px width): alike for small errors, "
+                           "logarithmic for large ones (default 0: the paper's squared distance)")
     warp.add_argument("--max-extra", type=_share, default=0.5, metavar="SHARE",
                       help="each image of a pair gets a random share, up to this one, of its point count in spurious "
                            "random points (default 0.5; the breakdown evaluation adds 0, 20 or 40%% to image B)")

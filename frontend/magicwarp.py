@@ -111,19 +111,25 @@ LOSS_WEIGHTINGS = ("matches", "pairs")
 
 
 def warp_loss(H: torch.Tensor, true_a: torch.Tensor, true_b: torch.Tensor, mask: torch.Tensor,
-              weighting: str = "matches") -> torch.Tensor:
+              weighting: str = "matches", cauchy: float = 0.0) -> torch.Tensor:
     """||H x_a - x_b||^2 in normalised coordinates, averaged over the batch's true matches.
 
     H (B, 3, 3); true_a, true_b (B, M, 2); mask (B, M) bool marks real (not padding) matches.
     ``weighting`` "matches" (the paper's sum over matches) lets a pair weigh as much as it has matches;
     "pairs" averages within each pair first, so every pair weighs the same, as in the breakdown
     experiment, where a sparse pair counts as much as a dense one.
+    ``cauchy`` > 0 replaces each squared distance d^2 by the Cauchy loss c^2 log(1 + d^2 / c^2) of that
+    scale c (normalised units; 0.05 is about 4 px across 160): the same for small errors, only logarithmic for
+    large ones, so a pair the network is unsure of pulls its estimate less toward the mean.
     """
     if weighting not in LOSS_WEIGHTINGS:
         raise ValueError(f"unknown loss weighting {weighting!r}; expected one of {', '.join(LOSS_WEIGHTINGS)}")
     projected = true_a @ H[:, :2, :2].transpose(1, 2) + H[:, None, :2, 2]
     depth = true_a @ H[:, 2:, :2].transpose(1, 2) + H[:, None, 2:, 2]
-    error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1) * mask
+    error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1)
+    if cauchy > 0:
+        error = cauchy ** 2 * torch.log1p(error / cauchy ** 2)
+    error = error * mask
     if weighting == "matches":
         return error.sum() / mask.sum().clamp(min=1)
     counts = mask.sum(1)

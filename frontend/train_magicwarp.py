@@ -32,6 +32,7 @@ class TrainConfig(LoopConfig):
     geometry_weights: tuple[float, ...] = (0.2, 0.075, 0.075, 0.15, 0.5)  # in the order of sim.pointclouds.GEOMETRIES
     max_matches: int = 128          # true matches per pair used by the loss
     loss_weighting: str = "matches"  # how pairs weigh in a batch's loss (frontend.magicwarp.LOSS_WEIGHTINGS)
+    cauchy: float = 0.0             # > 0: Cauchy point loss of this scale (normalised units) instead of the squared one
     homography: tuple[float, float, float, float] = (0.3, np.pi / 4, 0.35, 0.1)  # 2D pairs at motion 1: translation
     # (share of the image size), rotation (rad), zoom (+-share), corner jitter (share of the image size)
     max_extra: float = 0.5          # up to this fraction of spurious points added to each image of a pair
@@ -40,6 +41,8 @@ class TrainConfig(LoopConfig):
         super().__post_init__()
         if self.loss_weighting not in LOSS_WEIGHTINGS:
             raise ValueError(f"--loss-weighting must be one of {', '.join(LOSS_WEIGHTINGS)}, got {self.loss_weighting!r}")
+        if self.cauchy < 0:
+            raise ValueError(f"--cauchy must be 0 (the squared loss) or a positive scale, got {self.cauchy}")
         self.pairs()  # raises on bad pair options
 
     def pairs(self, motion: float = 1.0) -> PairConfig:
@@ -84,6 +87,6 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
     def step_fn(step: int, rng: np.random.Generator) -> dict:
         motion = motion_at(config, step)
         cells, true_a, true_b, mask = make_batch(rng, config, config.pairs(motion))
-        return {"loss": warp_loss(model(cells), true_a, true_b, mask, config.loss_weighting), "motion": torch.tensor(motion)}
+        return {"loss": warp_loss(model(cells), true_a, true_b, mask, config.loss_weighting, config.cauchy), "motion": torch.tensor(motion)}
 
     return train(model, config, out_dir, step_fn, lambda m: validation_figures(m, validation), "score")

@@ -137,6 +137,16 @@ def test_warp_loss_weighs_matches_or_pairs():
         warp_loss(identity, true_a, true_b, mask, "points")
 
 
+def test_cauchy_warp_loss_matches_the_squared_one_for_small_errors_only():
+    identity = torch.eye(3)[None]
+    true_a = torch.zeros(1, 2, 2)
+    true_b = torch.tensor([[[0.001, 0.0], [2.0, 0.0]]])  # squared errors 1e-6 and 4
+    small, large = torch.tensor([[True, False]]), torch.tensor([[False, True]])
+    assert warp_loss(identity, true_a, true_b, small, cauchy=1.0) == pytest.approx(1e-6, rel=1e-5)
+    assert warp_loss(identity, true_a, true_b, large, cauchy=1.0) == pytest.approx(np.log(5.0))  # c^2 log(1 + 4 / c^2)
+    assert warp_loss(identity, true_a, true_b, large, cauchy=0.5) == pytest.approx(0.25 * np.log(17.0))
+
+
 def test_magicwarp_api_and_iterations(rng):
     warp = MagicWarp.pretrained()
     assert warp.net.config == MagicWarpConfig()  # training with no shape options trains what ships
