@@ -69,6 +69,7 @@ def test_a_resumed_run_whose_validation_changed_restarts_its_best_checkpoint(tmp
         return {"loss": sum(p.sum() for p in model.parameters()) * 0.0}
 
     train(model, LoopConfig(iterations=2, validate_every=1), tmp_path, step_fn, lambda m: {"score": 90.0}, "score")
+
     def new_validation(m):  # other figures, with scores on another scale: lower than the old best
         return {"rep@paper:rotation": 60.0, "score": 50.0}
 
