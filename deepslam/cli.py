@@ -14,6 +14,7 @@ def _train_magicwarp(args: argparse.Namespace) -> None:
                          motion_start=args.motion_start, motion_ramp=args.motion_ramp, motion_max=args.motion_max,
                          geometry_weights=tuple(args.geometry_weights), homography=tuple(args.homography),
                          loss_weighting=args.loss_weighting, cauchy=args.cauchy, max_extra=args.max_extra,
+                         clean_a_share=args.clean_a_share,
                          validate_every=args.validate_every, threads=args.threads, ema=args.ema, init=args.init)
     shape = {"widths": tuple(args.widths) if args.widths else None, "hidden": args.hidden, "blocks": args.blocks}
     run(args.out, config, MagicWarpConfig(**{name: value for name, value in shape.items() if value is not None}))
@@ -261,6 +262,11 @@ def build_parser() -> argparse.ArgumentParser:
     warp.add_argument("--max-extra", type=_share, default=0.5, metavar="SHARE",
                       help="each image of a pair gets a random share, up to this one, of its point count in spurious "
                            "random points (default 0.5; the breakdown evaluation adds 0, 20 or 40%% to image B)")
+    warp.add_argument("--clean-a-share", type=_share, default=0.0, metavar="SHARE",
+                      help="this share of the pairs is drawn as the breakdown evaluation draws them: image A keeps "
+                           "every point (no dropout, no spurious points), image B every point still in view plus "
+                           "spurious ones, up to --max-extra of A's point count (default 0: dropout and spurious "
+                           "points in both images)")
     warp.set_defaults(func=_train_magicwarp)
     point = nets.add_parser("magicpoint", help="train MagicPoint on Synthetic Shapes")
     point.add_argument("--variant", choices=("S", "L"), default="S", help="network size")
@@ -318,7 +324,9 @@ def build_parser() -> argparse.ArgumentParser:
                                "MagicPointS-2x = S on the image enlarged 2x with two grid shifts, as the magic tracker "
                                "runs it, FAST, Harris, Shi); default all")
     detector.set_defaults(func=_eval_detector)
-    warp_eval = evals.add_parser("warp", help="MagicWarp 90%% breakdown-point table and repeatability plots")
+    warp_eval = evals.add_parser("warp", help="MagicWarp 90%% breakdown-point table (nearest neighbour, RANSAC, MagicWarp raw, "
+                                 "applied twice, refined, and given image B without its spurious points) and "
+                                 "repeatability plots")
     warp_eval.add_argument("--runs", type=int, default=50, help="random point sets per cell (the paper: 50)")
     warp_eval.add_argument("--seed", type=int, default=0, help="seed of the point sets")
     warp_eval.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the JSON and PNG plot")

@@ -95,15 +95,17 @@ def _breakdown(magnitudes: np.ndarray, reps: np.ndarray, threshold: float = 90.0
 
 
 def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progress: bool = True) -> dict:
-    """The paper's 90% breakdown table for NN, RANSAC, MagicWarp, MagicWarp x2 and MagicWarp refined by
-    snapping and a robust fit (``frontend.magicwarp.refine``) (the last three if ``warp``).
+    """The paper's 90% breakdown table for NN, RANSAC, MagicWarp, MagicWarp x2, MagicWarp refined by
+    snapping and a robust fit (``frontend.magicwarp.refine``), and MagicWarp given image B without its
+    spurious points but scored with them, "magicwarp_clean_b": how far a network that ignored spurious
+    points would reach (the last four if ``warp``).
 
     Returns {"breakdown": {density: {extra: {method: {motion: value}}}}, "curves": {motion: {method:
     mean repeatability per magnitude}} (medium density, 20% extra), "grids": {motion: magnitudes}}.
     """
     from tqdm import tqdm
 
-    methods = ["nearest_neighbour", "ransac"] + (["magicwarp", "magicwarp_x2", "magicwarp_refined"] if warp else [])
+    methods = ["nearest_neighbour", "ransac"] + (["magicwarp", "magicwarp_x2", "magicwarp_refined", "magicwarp_clean_b"] if warp else [])
     table: dict = {}
     curves: dict = {}
     jobs = [(d, e, m) for d in DENSITIES for e in EXTRAS for m in GRIDS]
@@ -124,6 +126,8 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
                 second = warp.estimate_batch([(warp_points(a, H), b) for (a, b), H in zip(inputs, first)], SIZE)
                 estimates["magicwarp_x2"] = [h2 @ h1 / (h2 @ h1)[2, 2] for h1, h2 in zip(first, second)]
                 estimates["magicwarp_refined"] = [refine(a, b, H) for (a, b), H in zip(inputs, first)]
+                estimates["magicwarp_clean_b"] = list(warp.estimate_batch(
+                    [(p.points_a, p.without_spurious().points_b) for p in pairs], SIZE))
             for method in methods:
                 reps[method][run] = [match_repeatability(H, p) for H, p in zip(estimates[method], pairs)]
         table.setdefault(density, {}).setdefault(str(extra), {})

@@ -36,6 +36,7 @@ class TrainConfig(LoopConfig):
     homography: tuple[float, float, float, float] = (0.3, np.pi / 4, 0.35, 0.1)  # 2D pairs at motion 1: translation
     # (share of the image size), rotation (rad), zoom (+-share), corner jitter (share of the image size)
     max_extra: float = 0.5          # up to this fraction of spurious points added to each image of a pair
+    clean_a_share: float = 0.0      # share of pairs drawn as the breakdown evaluation draws them (clean A)
 
     def __post_init__(self):
         super().__post_init__()
@@ -48,7 +49,8 @@ class TrainConfig(LoopConfig):
     def pairs(self, motion: float = 1.0) -> PairConfig:
         """The training pairs' configuration at curriculum ``motion``."""
         return PairConfig(motion=motion, geometry_weights=tuple(self.geometry_weights),
-                          homography=HomographyConfig(*self.homography), max_extra=self.max_extra)
+                          homography=HomographyConfig(*self.homography), max_extra=self.max_extra,
+                          clean_a_share=self.clean_a_share)
 
 
 def motion_at(config: TrainConfig, step: int) -> float:

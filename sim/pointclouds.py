@@ -9,6 +9,10 @@ A fifth kind, ``homography``, moves random image points by a random 2D homograph
 in-plane rotation, zoom and corner jitter at once): the motions of the breakdown evaluation. Its
 points, and the spurious points of every kind, are drawn as a detector reports them, at most one per
 8x8 cell (``sim.pointsets.detector_points``).
+
+A ``clean_a_share`` of the pairs (of any kind) is drawn as the breakdown evaluation draws its pairs: image
+A keeps every point, with no dropout and no spurious points; image B holds every point that stays in
+view plus spurious ones (up to ``max_extra`` times A's point count).
 """
 from __future__ import annotations
 
@@ -38,6 +42,7 @@ class PairConfig:
     match_dropout: float = 0.5     # fraction of matches broken by removing one side
     point_dropout: float = 0.25    # fraction of the remaining points removed in each image
     max_extra: float = 0.5         # up to this fraction of spurious points added to each image
+    clean_a_share: float = 0.0     # share of pairs with a clean image A and spurious points in B only
     fov_deg: tuple[float, float] = (55.0, 85.0)
     geometry_weights: tuple[float, ...] = (0.4, 0.15, 0.15, 0.3, 0.0)  # in the order of GEOMETRIES
     homography: HomographyConfig = HomographyConfig(translation=0.3, rotation=np.pi / 4, scale=0.35,
@@ -48,8 +53,9 @@ class PairConfig:
         if len(weights) != len(GEOMETRIES) or min(weights) < 0 or sum(weights) <= 0:
             raise ValueError(f"geometry_weights needs {len(GEOMETRIES)} non-negative weights, not all zero "
                              f"({', '.join(GEOMETRIES)}), got {tuple(weights)}")
-        if not 0 <= self.max_extra <= 1:
-            raise ValueError(f"max_extra must lie in [0, 1], got {self.max_extra}")
+        for name in ("max_extra", "clean_a_share"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
 
 
 @dataclass
@@ -112,7 +118,10 @@ def sample_pair(rng: np.random.Generator, config: PairConfig = PairConfig(), geo
             continue
         uv_a, uv_b, visible = drawn
         if visible.mean() >= config.min_overlap and visible.sum() >= 4:
-            return _with_dropout(rng, config, uv_a, uv_b, visible, 1.0 if kind != "homography" else rng.uniform())
+            strength = 1.0 if kind != "homography" else rng.uniform()
+            if config.clean_a_share and rng.random() < config.clean_a_share:
+                return PointPair(uv_a, _spurious(rng, config, uv_b[visible], len(uv_a)), uv_a[visible], uv_b[visible])
+            return _with_dropout(rng, config, uv_a, uv_b, visible, strength)
     raise RuntimeError("could not draw a point pair with enough overlap; check PairConfig")
 
 
@@ -154,7 +163,6 @@ def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray
                   visible: np.ndarray, strength: float = 1.0) -> PointPair:
     """Apply match dropout, point dropout (``strength`` times the configured fractions) and spurious
     points; keep all true matches for the loss."""
-    size = config.size
     keep_a = np.ones(len(uv_a), bool)
     keep_b = visible.copy()
     broken = visible & (rng.random(len(uv_a)) < strength * config.match_dropout)
@@ -163,10 +171,14 @@ def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray
     keep_b &= ~(broken & ~side)
     keep_a &= rng.random(len(uv_a)) >= strength * config.point_dropout
     keep_b &= rng.random(len(uv_a)) >= strength * config.point_dropout
+    kept_a, kept_b = uv_a[keep_a], uv_b[keep_b]
+    return PointPair(_spurious(rng, config, kept_a, len(kept_a)), _spurious(rng, config, kept_b, len(kept_b)),
+                     uv_a[visible], uv_b[visible])
 
-    def with_extra(points):
-        extra = detector_points(rng, int(len(points) * rng.uniform(0, config.max_extra)), size)
-        merged = np.vstack([points, extra])
-        return merged[rng.permutation(len(merged))]
 
-    return PointPair(with_extra(uv_a[keep_a]), with_extra(uv_b[keep_b]), uv_a[visible], uv_b[visible])
+def _spurious(rng: np.random.Generator, config: PairConfig, points: np.ndarray, count: int) -> np.ndarray:
+    """``points`` (N, 2) with a random share, up to ``config.max_extra``, of ``count`` spurious points
+    added, in random order."""
+    extra = detector_points(rng, int(count * rng.uniform(0, config.max_extra)), config.size)
+    merged = np.vstack([points, extra])
+    return merged[rng.permutation(len(merged))]

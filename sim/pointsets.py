@@ -66,6 +66,15 @@ class PointSetPair:
     points_b: np.ndarray
     true_index: np.ndarray
 
+    def without_spurious(self) -> PointSetPair:
+        """The same pair with only B's points that are some A point's partner (its spurious points
+        removed), B's order kept."""
+        partnered = np.zeros(len(self.points_b), bool)
+        partnered[self.true_index[self.true_index >= 0]] = True
+        new_index = np.cumsum(partnered) - 1
+        true_index = np.where(self.true_index >= 0, new_index[np.maximum(self.true_index, 0)], -1)
+        return PointSetPair(self.points_a, self.points_b[partnered], true_index)
+
 
 def make_pair(rng: np.random.Generator, H: np.ndarray, count: int, extra: float,
               size: tuple[int, int] = (120, 160)) -> PointSetPair:

@@ -54,6 +54,8 @@ def test_bad_input_gets_a_clear_error(tmp_path, capsys):
         assert message in capsys.readouterr().err
     for argv, message in [(["train", "magicwarp", "--max-extra", "1.5", "--out", folder],
                            "argument --max-extra: must be a number in [0, 1], got '1.5'"),
+                          (["train", "magicwarp", "--clean-a-share", "2", "--out", folder],
+                           "argument --clean-a-share: must be a number in [0, 1], got '2'"),
                           (["train", "magicpoint", "--clean-share", "half", "--out", folder],
                            "argument --clean-share: must be a number in [0, 1], got 'half'")]:
         with pytest.raises(SystemExit) as exit_info:  # argparse rejects these before any work starts

@@ -102,6 +102,8 @@ def test_point_cloud_pairs_are_consistent(rng):
         PairConfig(geometry_weights=(1.0, 0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="max_extra"):
         PairConfig(max_extra=1.5)
+    with pytest.raises(ValueError, match="clean_a_share"):
+        PairConfig(clean_a_share=-0.5)
 
 
 def test_spurious_points_grow_with_max_extra():
@@ -114,6 +116,22 @@ def test_spurious_points_grow_with_max_extra():
     (none, true_none), (many, true_many) = counts(0.0), counts(1.0)
     assert np.array_equal(true_none, true_many)
     assert np.all(many >= none) and many.sum() > 1.3 * none.sum()
+
+
+def test_clean_a_pairs_are_drawn_as_the_breakdown_evaluation_draws_them():
+    """With clean_a_share=1, image A keeps every point and only B gets spurious points; they are drawn
+    last, so the same seeds give the same A points and true matches at any max_extra."""
+    def pairs(**options):
+        return [sample_pair(np.random.default_rng([5, i]), PairConfig(**options), "homography") for i in range(20)]
+    clean, noisy, default = pairs(clean_a_share=1.0, max_extra=0.0), pairs(clean_a_share=1.0, max_extra=1.0), pairs()
+    for c, n in zip(clean, noisy):
+        np.testing.assert_array_equal(c.points_a, n.points_a)
+        np.testing.assert_array_equal(c.true_b, n.true_b)
+        assert sorted(map(tuple, c.points_b)) == sorted(map(tuple, c.true_b))  # no dropout in B
+        assert set(map(tuple, c.true_a)) <= set(map(tuple, c.points_a))
+        assert len(n.points_b) - len(n.true_b) <= len(n.points_a)  # up to max_extra times A's count
+    assert sum(len(n.points_b) for n in noisy) > 1.3 * sum(len(c.points_b) for c in clean)
+    assert sum(len(d.points_a) for d in default) < sum(len(c.points_a) for c in clean)  # dropout removes A points
 
 
 @pytest.mark.parametrize("geometry", ["plane", "homography"])
@@ -137,6 +155,21 @@ def test_breakdown_motions_and_pairs(rng):
     partners = pair.true_index >= 0
     np.testing.assert_allclose(pair.points_b[pair.true_index[partners]], warp_points(pair.points_a[partners], H))
     assert len(pair.points_b) == partners.sum() + 8
+
+
+def test_a_pair_without_its_spurious_points_keeps_every_true_partner(rng):
+    size = (120, 160)
+    H = motion_homography("random_h", 40, size, random_direction(rng))  # far enough that some points leave B
+    pair = make_pair(rng, H, 50, 0.4, size)
+    clean = pair.without_spurious()
+    partners = pair.true_index >= 0
+    assert 0 < partners.sum() < 50 and len(pair.points_b) == partners.sum() + 20
+    assert len(clean.points_b) == partners.sum() and clean.points_a is pair.points_a
+    np.testing.assert_array_equal(clean.true_index < 0, ~partners)
+    np.testing.assert_allclose(clean.points_b[clean.true_index[partners]], warp_points(pair.points_a[partners], H))
+    assert sorted(clean.true_index[partners]) == list(range(partners.sum()))  # B's order kept, nothing lost
+    no_extra = make_pair(rng, H, 30, 0.0, size)
+    np.testing.assert_array_equal(no_extra.without_spurious().points_b, no_extra.points_b)
 
 
 def test_detector_points_fill_distinct_cells_as_the_cell_encoding_sees_them(rng):

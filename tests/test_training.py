@@ -40,7 +40,7 @@ def test_magicwarp_training_runs_and_resumes(tmp_path):
 @pytest.mark.parametrize("trainer, options, message", [
     (train_magicwarp, {"loss_weighting": "points"}, "--loss-weighting"),
     (train_magicwarp, {"geometry_weights": (0, 0, 0, 0, 0)}, "geometry_weights"),
-    (train_magicwarp, {"max_extra": -0.1}, "max_extra"),
+    (train_magicwarp, {"max_extra": -0.1}, "max_extra"), (train_magicwarp, {"clean_a_share": 1.5}, "clean_a_share"),
     (train_magicwarp, {"cauchy": -0.05}, "--cauchy"), (train_magicwarp, {"lr": 0}, "--lr"),
     (train_magicpoint, {"clean_share": 1.5}, "--clean-share"), (train_magicpoint, {"variant": "M"}, "--variant")])
 def test_training_options_fail_before_any_work(trainer, options, message):
