@@ -71,8 +71,9 @@ class PointSetPair:
         removed), B's order kept."""
         partnered = np.zeros(len(self.points_b), bool)
         partnered[self.true_index[self.true_index >= 0]] = True
-        new_index = np.cumsum(partnered) - 1
-        true_index = np.where(self.true_index >= 0, new_index[np.maximum(self.true_index, 0)], -1)
+        has_partner = self.true_index >= 0
+        true_index = np.full(len(self.true_index), -1)
+        true_index[has_partner] = (np.cumsum(partnered) - 1)[self.true_index[has_partner]]
         return PointSetPair(self.points_a, self.points_b[partnered], true_index)
 
 

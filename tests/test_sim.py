@@ -170,6 +170,8 @@ def test_a_pair_without_its_spurious_points_keeps_every_true_partner(rng):
     assert sorted(clean.true_index[partners]) == list(range(partners.sum()))  # B's order kept, nothing lost
     no_extra = make_pair(rng, H, 30, 0.0, size)
     np.testing.assert_array_equal(no_extra.without_spurious().points_b, no_extra.points_b)
+    gone = make_pair(rng, motion_homography("translation", 200, size), 10, 0.0, size).without_spurious()
+    assert len(gone.points_b) == 0 and np.all(gone.true_index == -1)  # every point left: B is empty
 
 
 def test_detector_points_fill_distinct_cells_as_the_cell_encoding_sees_them(rng):
