@@ -69,9 +69,9 @@ class PointSetPair:
     def without_spurious(self) -> PointSetPair:
         """The same pair with only B's points that are some A point's partner (its spurious points
         removed), B's order kept."""
-        partnered = np.zeros(len(self.points_b), bool)
-        partnered[self.true_index[self.true_index >= 0]] = True
         has_partner = self.true_index >= 0
+        partnered = np.zeros(len(self.points_b), bool)
+        partnered[self.true_index[has_partner]] = True
         true_index = np.full(len(self.true_index), -1)
         true_index[has_partner] = (np.cumsum(partnered) - 1)[self.true_index[has_partner]]
         return PointSetPair(self.points_a, self.points_b[partnered], true_index)
