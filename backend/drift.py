@@ -2,9 +2,12 @@
 
 Trajectories are (N, 4, 4) ``T_world_cam`` arrays with the same timestamps (associated frames).
 """
+
 from __future__ import annotations
 
 import numpy as np
+
+from deepslam.geometry import path_length
 
 
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
@@ -16,7 +19,7 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[n
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
         S[2, 2] = -1
     R = U @ S @ Vt
-    variance = (xs ** 2).sum() / len(source)
+    variance = (xs**2).sum() / len(source)
     s = float(np.trace(np.diag(D) @ S) / variance) if with_scale and variance > 0 else 1.0
     return R, mu_t - s * R @ mu_s, s
 
@@ -51,10 +54,6 @@ def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.nda
     return np.linalg.norm(error[:, :3, 3], axis=1), np.degrees(_rotation_angle(error[:, :3, :3]))
 
 
-def path_length(poses: np.ndarray) -> float:
-    return float(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).sum())
-
-
 def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str, float]:
     """All drift figures: ATE RMSE (SE3, Sim3), RPE means (translation, rotation in degrees) and the
     final position error as % of the ground-truth path length (no alignment: both start together)."""
@@ -65,7 +64,12 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
     rpe_t, rpe_r = rpe(estimate, truth, delta)
     length = path_length(truth)
     final = np.linalg.norm(estimate[-1, :3, 3] - truth[-1, :3, 3])
-    return {"ate_se3": ate_rmse(estimate, truth, False), "ate_sim3": ate_rmse(estimate, truth, True),
-            "rpe_trans": float(rpe_t.mean()), "rpe_rot_deg": float(rpe_r.mean()),
-            "final_drift_pct": float(100 * final / length) if length > 0 else float("nan"),
-            "path_length": length, "frames": int(len(truth))}
+    return {
+        "ate_se3": ate_rmse(estimate, truth, False),
+        "ate_sim3": ate_rmse(estimate, truth, True),
+        "rpe_trans": float(rpe_t.mean()),
+        "rpe_rot_deg": float(rpe_r.mean()),
+        "final_drift_pct": float(100 * final / length) if length > 0 else float("nan"),
+        "path_length": length,
+        "frames": int(len(truth)),
+    }

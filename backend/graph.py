@@ -4,6 +4,7 @@ One ``Pose3`` per frame (key = frame index), a prior on the first, a robust ``Be
 per relative-pose measurement (consecutive or between non-consecutive keyframes).
 Noise sigmas are ordered as gtsam wants them: rotation (rad) first, then translation.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -19,8 +20,14 @@ class GraphConfig:
     relinearize_threshold: float = 0.001
 
 
-def measurement_sigmas(inliers: int, inlier_ratio: float, step_length: float, parallax_px: float = np.inf,
-                       base_rotation: float = 0.01, base_translation: float = 0.05) -> np.ndarray:
+def measurement_sigmas(
+    inliers: int,
+    inlier_ratio: float,
+    step_length: float,
+    parallax_px: float = np.inf,
+    base_rotation: float = 0.01,
+    base_translation: float = 0.05,
+) -> np.ndarray:
     """Sigmas [rx, ry, rz, tx, ty, tz] for a relative pose estimated from ``inliers`` matches.
 
     Uncertainty shrinks with the square root of the inlier count and grows as the inlier ratio
@@ -42,12 +49,15 @@ class PoseGraph:
         params.relinearizeSkip = 1  # check every update (gtsam's default skips 10)
         self.isam = gtsam.ISAM2(params)
         self.config = config
-        self.graph = gtsam.NonlinearFactorGraph()   # every factor, for batch re-solves
-        self.initial = gtsam.Values()               # every initial guess
+        self.graph = gtsam.NonlinearFactorGraph()  # every factor, for batch re-solves
+        self.initial = gtsam.Values()  # every initial guess
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
-        self._add_factor(gtsam.PriorFactorPose3(0, gtsam.Pose3(first_pose),
-                                                gtsam.noiseModel.Diagonal.Sigmas(np.array(config.prior_sigmas))))
+        self._add_factor(
+            gtsam.PriorFactorPose3(
+                0, gtsam.Pose3(first_pose), gtsam.noiseModel.Diagonal.Sigmas(np.array(config.prior_sigmas))
+            )
+        )
         self._insert(0, first_pose)
         self.count = 1
         self.update()
@@ -67,8 +77,10 @@ class PoseGraph:
 
     def add_between(self, key_1: int, key_2: int, T_1_2: np.ndarray, sigmas: np.ndarray) -> None:
         """A robust (Huber) between factor: pose 2 seen from pose 1 is ``T_1_2``."""
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k),
-                                               gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, np.float64)))
+        noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k),
+            gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, np.float64)),
+        )
         self._add_factor(gtsam.BetweenFactorPose3(key_1, key_2, gtsam.Pose3(T_1_2), noise))
 
     def update(self) -> None:

@@ -11,6 +11,7 @@ truth (the usual convention of monocular VO evaluation); ``scale="plane"`` keeps
 ground truth from a known initial distance to the dominant plane (like a known camera height), which
 homography decompositions (t / d) carry from frame to frame.
 """
+
 from __future__ import annotations
 
 import time
@@ -19,9 +20,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from backend import relpose
-from backend.graph import PoseGraph, measurement_sigmas
-from frontend.tracking import Tracker, Tracks, Truth
+from deepslam.backend import relpose
+from deepslam.backend.graph import PoseGraph, measurement_sigmas
+from deepslam.frontend.tracking import Tracker, Tracks, Truth
 
 SCALES = ("gt", "plane")
 
@@ -38,24 +39,28 @@ class InputFrame:
     truth: Truth | None = None
 
 
-@dataclass
+@dataclass(frozen=True)
 class OdometryConfig:
-    method: str = "homography"         # relative pose: homography (default, measured best here) | auto | essential | pycolmap
-    scale: str = "gt"                  # gt | plane
+    method: str = "homography"  # relative pose: homography (default, measured best here) | auto | essential | pycolmap
+    scale: str = "gt"  # gt | plane
     plane_distance: float | None = None  # for scale="plane": distance of the first camera to the plane
-    keyframe_parallax: float = 10.0    # pixels of median track motion that make a new keyframe
-    min_parallax: float = 3.0          # below this median motion (px) to the keyframe, measure against the one before
-    min_shared_tracks: int = 20        # fewer tracks shared with the keyframe make a new keyframe too
-    covariance: bool = True            # compute the latest pose's marginal covariance every frame
+    keyframe_parallax: float = 10.0  # pixels of median track motion that make a new keyframe
+    min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
+    min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
+    covariance: bool = True  # compute the latest pose's marginal covariance every frame
 
     def __post_init__(self):
         if self.method not in relpose.METHODS:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(relpose.METHODS)}")
         if self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; expected one of {', '.join(SCALES)}")
-        if not (self.keyframe_parallax > 0 and self.min_parallax >= 0 and self.min_shared_tracks >= relpose.MIN_MATCHES):
-            raise ValueError(f"keyframe parallax must be positive, min parallax at least 0 and min shared tracks at least "
-                             f"{relpose.MIN_MATCHES}, got {self.keyframe_parallax}, {self.min_parallax}, {self.min_shared_tracks}")
+        if not (
+            self.keyframe_parallax > 0 and self.min_parallax >= 0 and self.min_shared_tracks >= relpose.MIN_MATCHES
+        ):
+            raise ValueError(
+                f"keyframe parallax must be positive, min parallax at least 0 and min shared tracks at least "
+                f"{relpose.MIN_MATCHES}, got {self.keyframe_parallax}, {self.min_parallax}, {self.min_shared_tracks}"
+            )
         if self.plane_distance is not None and not self.plane_distance > 0:
             raise ValueError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
 
@@ -88,7 +93,8 @@ def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
 class Odometry:
     """Feed frames in order with ``process``; ``poses`` holds the optimised trajectory so far."""
 
-    def __init__(self, tracker: Tracker, config: OdometryConfig = OdometryConfig()):
+    def __init__(self, tracker: Tracker, config: OdometryConfig | None = None):
+        config = config or OdometryConfig()
         if config.scale == "plane" and not config.plane_distance:
             raise ValueError("scale 'plane' needs the first camera's distance to the dominant plane")
         self.tracker, self.config = tracker, config
@@ -153,8 +159,17 @@ class Odometry:
         if k == 0:
             first = frame.T_world_cam if frame.T_world_cam is not None else np.eye(4)
             self.graph = PoseGraph(first)
-            return FrameResult(0, tracks, None, first, None, np.zeros((0, 2), np.int64), None, 0,
-                               {"frontend": 1e3 * (tracked - started)})
+            return FrameResult(
+                0,
+                tracks,
+                None,
+                first,
+                None,
+                np.zeros((0, 2), np.int64),
+                None,
+                0,
+                {"frontend": 1e3 * (tracked - started)},
+            )
         kf = self._reference(k, tracks)
         pairs = shared_tracks(self.history[kf][1], tracks)
         self._choose_model(kf, k, pairs)
@@ -162,7 +177,9 @@ class Odometry:
         parallax = self._parallax(kf, k, pairs)
         measured = time.perf_counter()
         if rel.ok:
-            sigmas = measurement_sigmas(int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax)
+            sigmas = measurement_sigmas(
+                int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
+            )
             self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
         else:  # keep the graph connected: no motion since the last frame, very uncertain
             T = np.linalg.inv(self.graph.pose(kf)) @ self.graph.pose(k - 1)
@@ -173,30 +190,51 @@ class Odometry:
         self.graph.update()
         current = self.keyframe
         current_pairs = shared_tracks(self.history[current][1], tracks)
-        if self._parallax(current, k, current_pairs) >= self.config.keyframe_parallax \
-                or len(current_pairs) < self.config.min_shared_tracks:
+        if (
+            self._parallax(current, k, current_pairs) >= self.config.keyframe_parallax
+            or len(current_pairs) < self.config.min_shared_tracks
+        ):
             if rel.ok and kf == current:
                 self._update_plane_distance(rel, T)
             self.previous_keyframe, self.keyframe = current, k
         pose = self.graph.pose(k)
         optimised = time.perf_counter()
         covariance = self.graph.covariance(k) if self.config.covariance else None
-        return FrameResult(k, tracks, rel, pose, covariance, pairs, T, kf, {
-            "frontend": 1e3 * (tracked - started), "relative_pose": 1e3 * (measured - tracked),
-            "graph": 1e3 * (optimised - measured), "covariance": 1e3 * (time.perf_counter() - optimised)})
+        return FrameResult(
+            k,
+            tracks,
+            rel,
+            pose,
+            covariance,
+            pairs,
+            T,
+            kf,
+            {
+                "frontend": 1e3 * (tracked - started),
+                "relative_pose": 1e3 * (measured - tracked),
+                "graph": 1e3 * (optimised - measured),
+                "covariance": 1e3 * (time.perf_counter() - optimised),
+            },
+        )
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
         """Median motion (pixels) of the tracks shared by frames i and j."""
         if len(pairs) == 0:
             return 0.0
-        return float(np.median(np.linalg.norm(self.history[j][1].points[pairs[:, 1]]
-                                              - self.history[i][1].points[pairs[:, 0]], axis=1)))
+        return float(
+            np.median(
+                np.linalg.norm(self.history[j][1].points[pairs[:, 1]] - self.history[i][1].points[pairs[:, 0]], axis=1)
+            )
+        )
 
     def _reference(self, k: int, tracks: Tracks) -> int:
         """The keyframe to measure frame k against: the current one, or the one before it while the
         current one has too little parallax (and the older one still shares enough tracks)."""
         kf, older = self.keyframe, self.previous_keyframe
-        if older is None or self._parallax(kf, k, shared_tracks(self.history[kf][1], tracks)) >= self.config.min_parallax:
+        if (
+            older is None
+            or self._parallax(kf, k, shared_tracks(self.history[kf][1], tracks)) >= self.config.min_parallax
+        ):
             return kf
         return older if len(shared_tracks(self.history[older][1], tracks)) >= self.config.min_shared_tracks else kf
 
@@ -204,12 +242,25 @@ class Odometry:
         """An extra factor to the keyframe before the current one when it was not the reference and
         they share enough tracks."""
         j = self.previous_keyframe
-        if j is None or j == reference or len(shared_tracks(self.history[j][1], self.history[k][1])) < self.config.min_shared_tracks:
+        if (
+            j is None
+            or j == reference
+            or len(shared_tracks(self.history[j][1], self.history[k][1])) < self.config.min_shared_tracks
+        ):
             return
         rel, T, pairs = self._measure(j, k)
         if rel.ok and rel.model != "static":
-            self.graph.add_between(j, k, T, measurement_sigmas(int(rel.inliers.sum()), rel.inlier_ratio,
-                                                               float(np.linalg.norm(T[:3, 3])), self._parallax(j, k, pairs)))
+            self.graph.add_between(
+                j,
+                k,
+                T,
+                measurement_sigmas(
+                    int(rel.inliers.sum()),
+                    rel.inlier_ratio,
+                    float(np.linalg.norm(T[:3, 3])),
+                    self._parallax(j, k, pairs),
+                ),
+            )
 
     def poses(self) -> np.ndarray:
         """The optimised trajectory (N, 4, 4) ``T_world_cam``."""

@@ -8,6 +8,7 @@ The result ``T_c1_c2`` is the pose of camera 2 in camera 1's frame (X_1 = T_c1_c
 between-measurement of a pose graph. Monocular translation has no scale: it is a unit vector,
 or, for the homography, ``t / d`` with d the distance of camera 1 to the plane.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -59,9 +60,10 @@ def _normalised(points: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 def _score_homography(H: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
     """ORB-SLAM's S_H: symmetric transfer error with chi-square threshold 5.99."""
+
     def transfer(a, b, M):
         moved = cv2.perspectiveTransform(a.reshape(-1, 1, 2), M).reshape(-1, 2)
-        return np.sum((moved - b) ** 2, 1) / sigma ** 2
+        return np.sum((moved - b) ** 2, 1) / sigma**2
 
     e12, e21 = transfer(p1, p2, H), transfer(p2, p1, np.linalg.inv(H))
     score = np.where(e12 < 5.99, 5.99 - e12, 0) + np.where(e21 < 5.99, 5.99 - e21, 0)
@@ -73,14 +75,15 @@ def _score_fundamental(F: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: flo
     h1, h2 = np.c_[p1, np.ones(len(p1))], np.c_[p2, np.ones(len(p2))]
     l2, l1 = h1 @ F.T, h2 @ F
     num = np.sum(h2 * l2, 1) ** 2
-    e2 = num / (l2[:, 0] ** 2 + l2[:, 1] ** 2 + 1e-12) / sigma ** 2
-    e1 = num / (l1[:, 0] ** 2 + l1[:, 1] ** 2 + 1e-12) / sigma ** 2
+    e2 = num / (l2[:, 0] ** 2 + l2[:, 1] ** 2 + 1e-12) / sigma**2
+    e1 = num / (l1[:, 0] ** 2 + l1[:, 1] ** 2 + 1e-12) / sigma**2
     score = np.where(e2 < 3.84, 5.99 - e2, 0) + np.where(e1 < 3.84, 5.99 - e1, 0)
     return float(score.sum()), (e1 < 3.84) & (e2 < 3.84)
 
 
-def homography_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray | None = None,
-                    previous_t: np.ndarray | None = None) -> RelativePose:
+def homography_pose(
+    p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray | None = None, previous_t: np.ndarray | None = None
+) -> RelativePose:
     """Relative pose from a homography (estimated with MAGSAC if not given) and its decomposition.
 
     Of the up to four solutions, keep those with the reference points in front of both cameras
@@ -97,7 +100,8 @@ def homography_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray
     count, rotations, translations, normals = cv2.decomposeHomographyMat(H, K)
     n1, n2 = _normalised(p1[inliers], K), _normalised(p2[inliers], K)
     good = cv2.filterHomographyDecompByVisibleRefpoints(
-        rotations, normals, n1.reshape(-1, 1, 2).astype(np.float32), n2.reshape(-1, 1, 2).astype(np.float32))
+        rotations, normals, n1.reshape(-1, 1, 2).astype(np.float32), n2.reshape(-1, 1, 2).astype(np.float32)
+    )
     candidates = [int(i) for i in np.ravel(good)] if good is not None else list(range(count))
     # OpenCV's normal satisfies n . X_1 = d > 0 on the plane: a plane in front of camera 1 has n_z > 0
     candidates = [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
@@ -108,10 +112,17 @@ def homography_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray
         def agreement(i):
             centre = -rotations[i].T @ translations[i].ravel()
             return float(centre @ previous_t / (np.linalg.norm(centre) * np.linalg.norm(previous_t) + 1e-12))
+
         candidates.sort(key=agreement, reverse=True)
     best = candidates[0]
-    return RelativePose(_between(rotations[best], translations[best]), "homography", inliers, rotation_only,
-                        normals[best].ravel(), float(np.linalg.norm(translations[best])))
+    return RelativePose(
+        _between(rotations[best], translations[best]),
+        "homography",
+        inliers,
+        rotation_only,
+        normals[best].ravel(),
+        float(np.linalg.norm(translations[best])),
+    )
 
 
 def _sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -149,16 +160,18 @@ def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: flo
     return best
 
 
-def pycolmap_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, size: tuple[int, int],
-                  max_error: float = 1.0) -> RelativePose:
+def pycolmap_pose(
+    p1: np.ndarray, p2: np.ndarray, K: np.ndarray, size: tuple[int, int], max_error: float = 1.0
+) -> RelativePose:
     """Relative pose from pycolmap's calibrated two-view geometry (its own model selection);
     ``max_error`` is its RANSAC threshold in pixels."""
     import pycolmap
 
     h, w = size
     # COLMAP puts the centre of the top-left pixel at (0.5, 0.5): shift points and principal point
-    camera = pycolmap.Camera(model="PINHOLE", width=w, height=h,
-                             params=[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5])
+    camera = pycolmap.Camera(
+        model="PINHOLE", width=w, height=h, params=[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5]
+    )
     camera.has_prior_focal_length = True
     options = pycolmap.TwoViewGeometryOptions()
     options.compute_relative_pose = True
@@ -176,16 +189,24 @@ def pycolmap_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, size: tuple[int
     T = np.linalg.inv(T_c2_c1)
     norm = np.linalg.norm(T[:3, 3])
     T[:3, 3] /= max(norm, 1e-12)
-    return RelativePose(T, "homography" if "PLANAR" in config else "essential", inliers,
-                        rotation_only=config == "PANORAMIC")
+    return RelativePose(
+        T, "homography" if "PLANAR" in config else "essential", inliers, rotation_only=config == "PANORAMIC"
+    )
 
 
 def _failed(count: int, reason: str) -> RelativePose:
     return RelativePose(np.eye(4), "failed", np.zeros(count, bool), reason=reason)
 
 
-def estimate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, method: str = "auto", size: tuple[int, int] = (120, 160),
-             previous_t: np.ndarray | None = None, sigma: float = 1.0) -> RelativePose:
+def estimate(
+    p1: np.ndarray,
+    p2: np.ndarray,
+    K: np.ndarray,
+    method: str = "auto",
+    size: tuple[int, int] = (120, 160),
+    previous_t: np.ndarray | None = None,
+    sigma: float = 1.0,
+) -> RelativePose:
     """Relative pose of camera 2 in camera 1 from matched pixels p1, p2 (N, 2).
 
     Degenerate cases never raise: fewer than ``MIN_MATCHES`` matches gives model "failed"; a median

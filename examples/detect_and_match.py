@@ -1,16 +1,19 @@
 """Detect corners in two views of a Synthetic Shapes image and match them without descriptors.
 
-    python examples/detect_and_match.py
+python examples/detect_and_match.py
 """
+
 import numpy as np
 
-from frontend import MagicPoint, MagicWarp, match
-from sim import shapes
-from sim.homography import HomographyConfig, sample_homography, warp_image_and_points
+from deepslam.frontend import MagicPoint, MagicWarp, match
+from deepslam.sim import shapes
+from deepslam.sim.homography import HomographyConfig, sample_homography, warp_image_and_points
 
 rng = np.random.default_rng(0)
 image_a, _ = shapes.render("checkerboards", rng)
-H_true = sample_homography(rng, image_a.shape, HomographyConfig(translation=0.03, rotation=0.05, scale=0.05, perspective=0.01))
+H_true = sample_homography(
+    rng, image_a.shape, HomographyConfig(translation=0.03, rotation=0.05, scale=0.05, perspective=0.01)
+)
 image_b, _ = warp_image_and_points(image_a, np.zeros((0, 2)), H_true)
 
 detector, warp = MagicPoint.pretrained("S"), MagicWarp.pretrained()

@@ -1,14 +1,15 @@
 """A pose graph in a dozen lines: prior, between factors, ISAM2, covariance, batch cross-check.
 
-    python examples/pose_graph.py
+python examples/pose_graph.py
 """
+
 import numpy as np
 
-from backend.graph import PoseGraph
-from sim.camera import pose
+from deepslam.backend.graph import PoseGraph
+from deepslam.sim.camera import pose
 
 step = pose(np.array([0.0, 0.1, 0.0]), np.array([0.5, 0.0, 0.0]))  # move 0.5 m, turn 0.1 rad
-sigmas = np.array([0.01] * 3 + [0.05] * 3)                         # rotation first, then translation
+sigmas = np.array([0.01] * 3 + [0.05] * 3)  # rotation first, then translation
 graph = PoseGraph(np.eye(4))
 for k in range(1, 10):
     graph.add_pose(k, graph.pose(k - 1) @ step)

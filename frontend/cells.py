@@ -4,9 +4,12 @@ A (65, H/8, W/8) tensor: channel ``8 * row + col`` of a cell holds the point at 
 8x8 cell, channel 64 is the dustbin ("no point"). A cell with k points spreads its mass 1/k over
 them, so every cell is a distribution.
 """
+
 from __future__ import annotations
 
 import numpy as np
+
+from deepslam.geometry import in_image
 
 CELL = 8
 
@@ -29,11 +32,11 @@ def points_to_cells_batch(point_sets: list[np.ndarray], size: tuple[int, int]) -
         if points.size == 0:
             continue
         pixels = np.rint(points.reshape(len(points), -1)[:, :2]).astype(np.int64)
-        keep = (pixels[:, 0] >= 0) & (pixels[:, 0] < w) & (pixels[:, 1] >= 0) & (pixels[:, 1] < h)
+        keep = in_image(pixels, size, margin=0.5)
         x, y = pixels[keep, 0], pixels[keep, 1]
         np.add.at(cells[b], ((y % CELL) * CELL + x % CELL, y // CELL, x // CELL), 1.0)
         np.add.at(counts[b], (y // CELL, x // CELL), 1.0)
     occupied = counts > 0
-    cells[:, :CELL * CELL] /= np.where(occupied, counts, 1.0)[:, None]
+    cells[:, : CELL * CELL] /= np.where(occupied, counts, 1.0)[:, None]
     cells[:, CELL * CELL] = ~occupied
     return cells

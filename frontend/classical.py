@@ -3,6 +3,7 @@
 Each returns float32 (N, 3) [x, y, score] sorted by score, after the shared ``extract_points``
 (local maxima, greedy NMS of radius ``nms_radius`` pixels, border removal).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,7 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from frontend.points import check_image, extract_points
+from deepslam.frontend.points import check_image, extract_points
 
 
 @dataclass

@@ -1,4 +1,5 @@
 """MagicPoint: a VGG-style fully convolutional corner detector with a 65-channel cell softmax."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,9 +10,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from frontend.cells import CELL
-from frontend.nets import fold_batchnorm, read_weights, vgg_block
-from frontend.points import check_image, extract_points
+from deepslam.frontend.cells import CELL
+from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
+from deepslam.frontend.points import check_image, extract_points
 
 WEIGHTS = Path(__file__).parent / "weights"
 
@@ -50,7 +51,11 @@ class MagicPointNet(nn.Module):
         return self.head(self.encoder(image))
 
 
-GRID_SHIFTS = {1: [(0, 0)], 2: [(0, 0), (4, 4)], 4: [(0, 0), (4, 0), (0, 4), (4, 4)]}  # (dx, dy) averaged by ``heatmap``
+GRID_SHIFTS = {
+    1: [(0, 0)],
+    2: [(0, 0), (4, 4)],
+    4: [(0, 0), (4, 0), (0, 4), (4, 4)],
+}  # (dx, dy) averaged by ``heatmap``
 SHIFT_BATCH = 2  # shifted copies per forward pass: 2 ran 1.25-1.45x faster than 1 or 4 on one thread here
 
 
@@ -77,8 +82,17 @@ class MagicPoint:
     closer to the scale of its synthetic training shapes, at about s^2 the time.
     """
 
-    def __init__(self, net: MagicPointNet, threshold: float = 0.015, nms_radius: int = 4, border: int = 4,
-                 top_k: int | None = None, grid_shifts: int = 1, subpixel: bool = False, upsample: int = 1):
+    def __init__(
+        self,
+        net: MagicPointNet,
+        threshold: float = 0.015,
+        nms_radius: int = 4,
+        border: int = 4,
+        top_k: int | None = None,
+        grid_shifts: int = 1,
+        subpixel: bool = False,
+        upsample: int = 1,
+    ):
         if grid_shifts not in GRID_SHIFTS:
             raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
         if not isinstance(upsample, int) or not 1 <= upsample <= 4:
@@ -113,12 +127,16 @@ class MagicPoint:
         image = check_image(image, CELL)
         h, w = image.shape
         shifts = GRID_SHIFTS[self.grid_shifts]
-        batch = np.stack([cv2.copyMakeBorder(image, dy, CELL - dy, dx, CELL - dx, cv2.BORDER_REFLECT_101)
-                          for dx, dy in shifts])
+        batch = np.stack(
+            [cv2.copyMakeBorder(image, dy, CELL - dy, dx, CELL - dx, cv2.BORDER_REFLECT_101) for dx, dy in shifts]
+        )
         x = torch.from_numpy(batch).float().div_(255.0)[:, None]
-        heatmaps = torch.cat([cells_to_heatmap(torch.softmax(self.net(chunk), dim=1))
-                              for chunk in x.split(SHIFT_BATCH)]).numpy()
-        return np.mean([heat[dy:dy + h, dx:dx + w] for heat, (dx, dy) in zip(heatmaps, shifts)], axis=0)
+        heatmaps = torch.cat(
+            [cells_to_heatmap(torch.softmax(self.net(chunk), dim=1)) for chunk in x.split(SHIFT_BATCH)]
+        ).numpy()
+        return np.mean(
+            [heat[dy : dy + h, dx : dx + w] for heat, (dx, dy) in zip(heatmaps, shifts, strict=False)], axis=0
+        )
 
     def detect(self, image: np.ndarray) -> np.ndarray:
         """Corners float32 (N, 3) [x, y, score] sorted by descending score, in the input's pixels."""
@@ -126,8 +144,9 @@ class MagicPoint:
         if s > 1:
             h, w = check_image(image, CELL).shape
             image = cv2.resize(image, (w * s, h * s), interpolation=cv2.INTER_LINEAR)
-        points = extract_points(self.heatmap(image), self.threshold, self.nms_radius * s, self.border * s, self.top_k,
-                                self.subpixel)
+        points = extract_points(
+            self.heatmap(image), self.threshold, self.nms_radius * s, self.border * s, self.top_k, self.subpixel
+        )
         if s > 1:
             points[:, :2] = (points[:, :2] + 0.5) / s - 0.5  # pixel centres: x_enlarged + 0.5 = s (x + 0.5)
         return points

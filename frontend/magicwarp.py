@@ -1,4 +1,5 @@
 """MagicWarp: a homography from two point images, and descriptor-free matching with it."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,8 +10,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from frontend.cells import CELL, points_to_cells_batch
-from frontend.nets import fold_batchnorm, read_weights, vgg_block
+from deepslam.frontend.cells import CELL, points_to_cells_batch
+from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
+from deepslam.geometry import warp_points
 
 WEIGHTS = Path(__file__).parent / "weights"
 
@@ -29,8 +31,10 @@ class MagicWarpConfig:
         if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:
             raise ValueError(f"MagicWarp needs positive widths, pooled grid and hidden width, got {self}")
         if self.blocks < 1 or len(self.widths) % self.blocks:
-            raise ValueError(f"MagicWarp needs a whole number of stages of at least one block: {len(self.widths)} "
-                             f"widths do not make stages of {self.blocks} blocks")
+            raise ValueError(
+                f"MagicWarp needs a whole number of stages of at least one block: {len(self.widths)} "
+                f"widths do not make stages of {self.blocks} blocks"
+            )
 
 
 class MagicWarpNet(nn.Module):
@@ -42,13 +46,17 @@ class MagicWarpNet(nn.Module):
         self.config = config
         layers, channels = [], 2 * (CELL * CELL + 1)
         for stage in range(0, len(config.widths), config.blocks):
-            for width in config.widths[stage:stage + config.blocks]:
+            for width in config.widths[stage : stage + config.blocks]:
                 layers.append(vgg_block(channels, width))
                 channels = width
             layers.append(nn.MaxPool2d(2))
         self.encoder = nn.Sequential(*layers[:-1], nn.AdaptiveAvgPool2d(config.pooled))
-        self.head = nn.Sequential(nn.Flatten(), nn.Linear(channels * config.pooled[0] * config.pooled[1], config.hidden),
-                                  nn.ReLU(inplace=True), nn.Linear(config.hidden, 9))
+        self.head = nn.Sequential(
+            nn.Flatten(),
+            nn.Linear(channels * config.pooled[0] * config.pooled[1], config.hidden),
+            nn.ReLU(inplace=True),
+            nn.Linear(config.hidden, 9),
+        )
         last = self.head[-1]
         nn.init.normal_(last.weight, std=1e-3)
         with torch.no_grad():
@@ -58,82 +66,11 @@ class MagicWarpNet(nn.Module):
         H = self.head(self.encoder(cells)).view(-1, 3, 3)
         return H / H[:, 2:3, 2:3]
 
-    @staticmethod
-    def deepened(config: MagicWarpConfig, weights: dict, blocks: int) -> tuple[MagicWarpConfig, dict]:
-        """The config and state dict of the network ``config`` with ``blocks`` VGG blocks per stage.
-
-        Each stage keeps its blocks and gains new ones of its last width after them, each passing its
-        input through: an identity 3x3 convolution, then a BatchNorm whose scale and shift undo its own
-        normalisation of the input statistics the previous BatchNorm implies (mean and variance of a
-        rectified Gaussian of that BatchNorm's shift and scale). The deeper network computes the same
-        function in eval mode and nearly the same while training (batch statistics).
-        """
-        if blocks < config.blocks:
-            raise ValueError(f"cannot remove blocks ({config.blocks} per stage) and keep the function")
-        old, stages = config.blocks, len(config.widths) // config.blocks
-        grown = {name: tensor for name, tensor in weights.items() if not name.startswith("encoder.")}
-        widths = []
-        for stage in range(stages):
-            stage_widths = list(config.widths[stage * old:(stage + 1) * old])
-            widths += stage_widths + stage_widths[-1:] * (blocks - old)
-            for block in range(blocks):
-                source, target = f"encoder.{stage * (old + 1) + min(block, old - 1)}.", f"encoder.{stage * (blocks + 1) + block}."
-                layer = {name[len(source):]: tensor for name, tensor in weights.items() if name.startswith(source)}
-                if block >= old:
-                    layer = _identity_block(layer["1.weight"], layer["1.bias"])
-                grown.update({target + name: tensor for name, tensor in layer.items()})
-        return MagicWarpConfig(tuple(widths), config.pooled, config.hidden, blocks), grown
-
-
-def _identity_block(scale: torch.Tensor, shift: torch.Tensor, eps: float = 1e-5) -> dict:
-    """State dict of a VGG block of ``len(scale)`` channels that passes on the output of a block whose
-    BatchNorm has ``scale`` and ``shift``: ReLU of roughly N(shift, scale^2) per channel. ``eps`` is
-    BatchNorm2d's default."""
-    width = len(scale)
-    conv = torch.zeros(width, width, 3, 3)
-    conv[:, :, 1, 1] = torch.eye(width)
-    spread = scale.abs()
-    ratio = shift / spread.clamp(min=1e-6)
-    below, density = torch.special.ndtr(ratio), torch.exp(-ratio ** 2 / 2) / np.sqrt(2 * np.pi)
-    mean = shift * below + spread * density
-    variance = ((shift ** 2 + spread ** 2) * below + shift * spread * density - mean ** 2).clamp(min=0)
-    return {"0.weight": conv, "0.bias": torch.zeros(width), "1.weight": torch.sqrt(variance + eps), "1.bias": mean,
-            "1.running_mean": mean.clone(), "1.running_var": variance, "1.num_batches_tracked": torch.tensor(0)}
-
 
 def normalizer(size: tuple[int, int]) -> np.ndarray:
     """N (3, 3) mapping pixel coordinates of an image of ``size`` (H, W) to [-1, 1]."""
     h, w = size
     return np.array([[2 / (w - 1), 0, -1], [0, 2 / (h - 1), -1], [0, 0, 1]])
-
-
-LOSS_WEIGHTINGS = ("matches", "pairs")
-
-
-def warp_loss(H: torch.Tensor, true_a: torch.Tensor, true_b: torch.Tensor, mask: torch.Tensor,
-              weighting: str = "matches", cauchy: float = 0.0) -> torch.Tensor:
-    """||H x_a - x_b||^2 in normalised coordinates, averaged over the batch's true matches.
-
-    H (B, 3, 3); true_a, true_b (B, M, 2); mask (B, M) bool marks real (not padding) matches.
-    ``weighting`` "matches" (the paper's sum over matches) lets a pair weigh as much as it has matches;
-    "pairs" averages within each pair first, so every pair weighs the same, as in the breakdown
-    experiment, where a sparse pair counts as much as a dense one.
-    ``cauchy`` > 0 replaces each squared distance d^2 by the Cauchy loss c^2 log(1 + d^2 / c^2) of that
-    scale c (normalised units; 0.05 is about 4 px across 160): the same for small errors, only logarithmic for
-    large ones, so a pair the network is unsure of pulls its estimate less toward the mean.
-    """
-    if weighting not in LOSS_WEIGHTINGS:
-        raise ValueError(f"unknown loss weighting {weighting!r}; expected one of {', '.join(LOSS_WEIGHTINGS)}")
-    projected = true_a @ H[:, :2, :2].transpose(1, 2) + H[:, None, :2, 2]
-    depth = true_a @ H[:, 2:, :2].transpose(1, 2) + H[:, None, 2:, 2]
-    error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1)
-    if cauchy > 0:
-        error = cauchy ** 2 * torch.log1p(error / cauchy ** 2)
-    error = error * mask
-    if weighting == "matches":
-        return error.sum() / mask.sum().clamp(min=1)
-    counts = mask.sum(1)
-    return (error.sum(1) / counts.clamp(min=1)).sum() / (counts > 0).sum().clamp(min=1)
 
 
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:
@@ -163,15 +100,21 @@ class MagicWarp:
     @torch.inference_mode()
     def estimate_batch(self, pairs: list[tuple[np.ndarray, np.ndarray]], image_size: tuple[int, int]) -> np.ndarray:
         """Homographies (B, 3, 3) float64 in pixels for several (points_a, points_b) pairs at once."""
-        cells = np.concatenate([points_to_cells_batch([a for a, _ in pairs], image_size),
-                                points_to_cells_batch([b for _, b in pairs], image_size)], axis=1)
+        cells = np.concatenate(
+            [
+                points_to_cells_batch([a for a, _ in pairs], image_size),
+                points_to_cells_batch([b for _, b in pairs], image_size),
+            ],
+            axis=1,
+        )
         H = self.net(torch.from_numpy(cells).contiguous(memory_format=torch.channels_last)).double().numpy()
         N = normalizer(image_size)
         H = np.linalg.inv(N) @ H @ N
         return H / H[:, 2:3, 2:3]
 
-    def estimate(self, points_a: np.ndarray, points_b: np.ndarray, image_size: tuple[int, int] = (120, 160),
-                 iterations: int = 1) -> np.ndarray:
+    def estimate(
+        self, points_a: np.ndarray, points_b: np.ndarray, image_size: tuple[int, int] = (120, 160), iterations: int = 1
+    ) -> np.ndarray:
         """Homography (3, 3) float64 mapping pixel points of image a to image b, ``H[2, 2] == 1``.
 
         With ``iterations`` > 1 it warps ``points_a`` by the estimate so far, estimates again and
@@ -187,14 +130,13 @@ class MagicWarp:
         return H
 
 
-def warp_points(points: np.ndarray, H: np.ndarray) -> np.ndarray:
-    """Apply a homography to (N, 2) points; returns (N, 2) float64."""
-    moved = np.asarray(points, np.float64)[:, :2] @ H[:, :2].T + H[:, 2]
-    return moved[:, :2] / moved[:, 2:3]
-
-
-def refine(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, radii: tuple[float, ...] = (8.0, 3.0),
-           threshold: float = 1.5) -> np.ndarray:
+def refine(
+    points_a: np.ndarray,
+    points_b: np.ndarray,
+    H: np.ndarray,
+    radii: tuple[float, ...] = (8.0, 3.0),
+    threshold: float = 1.5,
+) -> np.ndarray:
     """Refine a homography (3, 3) mapping a to b by snapping and a robust fit, still without descriptors.
 
     For each radius (pixels) in turn: pair the points of a warped by ``H`` with their nearest points of
@@ -229,7 +171,7 @@ def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: f
     rows, cols = np.nonzero(distance <= max_dist)
     order = np.argsort(distance[rows, cols], kind="stable")
     used_a, used_b, pairs = set(), set(), []
-    for i, j in zip(rows[order], cols[order]):
+    for i, j in zip(rows[order], cols[order], strict=False):
         if i not in used_a and j not in used_b:
             used_a.add(i)
             used_b.add(j)

@@ -1,4 +1,5 @@
 """Building blocks shared by MagicPoint and MagicWarp: the VGG block and BatchNorm folding for inference."""
+
 from __future__ import annotations
 
 import copy
@@ -27,7 +28,7 @@ def fold_batchnorm(model: nn.Module) -> nn.Module:
     folded = copy.deepcopy(model).eval()
     for module in folded.modules():
         children = list(module.named_children())
-        for (_, conv), (bn_name, bn) in zip(children, children[1:]):
+        for (_, conv), (bn_name, bn) in zip(children, children[1:], strict=False):
             if isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d):
                 scale = bn.weight.detach() / torch.sqrt(bn.running_var + bn.eps)
                 bias = conv.bias.detach() if conv.bias is not None else torch.zeros_like(bn.running_mean)
@@ -53,25 +54,3 @@ def read_weights(path: Path) -> tuple[dict, dict]:
     average of the weights (``--ema``) when it has one, as that is what it was validated on."""
     state = torch.load(path, map_location="cpu", weights_only=False)
     return network_config(state), state.get("ema", state["model"])
-
-
-def embed_weights(model: nn.Module, weights: dict) -> None:
-    """Load the state dict of a narrower network of the same layout (wider layers only) into
-    ``model`` so that it computes the same function.
-
-    Every tensor is copied into the leading slice of the wider one; old units get zero weights from
-    the new inputs, new units keep their fresh initialisation, so they start to learn without
-    changing the output. Holds for chains of convolutions, BatchNorm, pooling and linear layers with
-    channel-major flattening. Raises ValueError if a tensor is missing or smaller in ``model``.
-    """
-    target = model.state_dict()
-    if set(target) != set(weights):
-        raise ValueError("the weights have other layers than the network")
-    for name, old in weights.items():
-        new = target[name]
-        if old.dim() != new.dim() or any(o > n for o, n in zip(old.shape, new.shape)):
-            raise ValueError(f"{name}: {tuple(old.shape)} does not fit into {tuple(new.shape)}")
-        if old.dim() >= 2:
-            new[: old.shape[0], old.shape[1]:] = 0
-        new[tuple(slice(0, size) for size in old.shape)] = old
-    model.load_state_dict(target)

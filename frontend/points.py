@@ -2,6 +2,7 @@
 
 Shared by MagicPoint and the classical detectors, so every detector is scored the same way.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -34,8 +35,8 @@ def nms_points(points: np.ndarray, radius: float) -> np.ndarray:
     xy = points[:, :2]
     for i in range(len(points)):
         if not suppressed[i]:
-            close = np.sum((xy[i + 1:] - xy[i]) ** 2, axis=1) <= radius ** 2
-            suppressed[i + 1:] |= close
+            close = np.sum((xy[i + 1 :] - xy[i]) ** 2, axis=1) <= radius**2
+            suppressed[i + 1 :] |= close
     return points[~suppressed]
 
 
@@ -47,7 +48,9 @@ def subpixel(scores: np.ndarray, points: np.ndarray) -> np.ndarray:
     y = np.clip(points[:, 1].astype(np.int64), 1, h - 2)
     centre = scores[y, x].astype(np.float64)
     refined = points.astype(np.float32).copy()
-    for axis, (before, after) in enumerate(((scores[y, x - 1], scores[y, x + 1]), (scores[y - 1, x], scores[y + 1, x]))):
+    for axis, (before, after) in enumerate(
+        ((scores[y, x - 1], scores[y, x + 1]), (scores[y - 1, x], scores[y + 1, x]))
+    ):
         curvature = 2 * centre - before - after
         offset = np.where(curvature > 1e-12, 0.5 * (after - before) / np.maximum(curvature, 1e-12), 0.0)
         refined[:, axis] += np.clip(offset, -0.5, 0.5)
@@ -56,12 +59,18 @@ def subpixel(scores: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def disk(radius: int) -> np.ndarray:
     """uint8 (2r+1, 2r+1) mask of the pixels within ``radius`` of the centre (Euclidean)."""
-    dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-    return (dx ** 2 + dy ** 2 <= radius ** 2).astype(np.uint8)
+    dy, dx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    return (dx**2 + dy**2 <= radius**2).astype(np.uint8)
 
 
-def extract_points(scores: np.ndarray, threshold: float, nms_radius: int = 4, border: int = 4,
-                   top_k: int | None = None, refine: bool = False) -> np.ndarray:
+def extract_points(
+    scores: np.ndarray,
+    threshold: float,
+    nms_radius: int = 4,
+    border: int = 4,
+    top_k: int | None = None,
+    refine: bool = False,
+) -> np.ndarray:
     """Points of a score map (H, W): maxima of their disk of radius r = ``nms_radius`` pixels above
     ``threshold``, at least ``border`` pixels from the edge, then greedy NMS with the same radius (a
     weaker point within r pixels of a stronger one goes), best ``top_k`` kept; with ``refine``, moved

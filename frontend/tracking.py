@@ -9,6 +9,7 @@
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
   detection budget: the limit any front-end can reach with this back-end.
 """
+
 from __future__ import annotations
 
 import time
@@ -17,8 +18,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from frontend.magicpoint import MagicPoint
-from frontend.magicwarp import MagicWarp, match, refine, warp_points
+from deepslam.frontend.magicpoint import MagicPoint
+from deepslam.frontend.magicwarp import MagicWarp, match, refine
+from deepslam.geometry import in_image, warp_points
 
 FRONTENDS = ("magic", "classical", "oracle")
 SUPPORT_PX = 1.5  # a new detection this close to a previous one moved by a candidate homography supports it
@@ -89,21 +91,33 @@ class MagicTracker(Tracker):
     and lets the previous H and the identity, refined the same way, compete with it (``_homography``);
     ``ransac`` adds a fundamental-matrix check."""
 
-    def __init__(self, detector: MagicPoint, warp: MagicWarp, max_dist: float = 3.0, iterations: int = 1,
-                 ransac: bool = False, max_age: int = 20, refine: bool = True, carry: bool = True, budget: int = 150):
+    def __init__(
+        self,
+        detector: MagicPoint,
+        warp: MagicWarp,
+        max_dist: float = 3.0,
+        iterations: int = 1,
+        ransac: bool = False,
+        max_age: int = 20,
+        refine: bool = True,
+        carry: bool = True,
+        budget: int = 150,
+    ):
         super().__init__()
         if iterations < 1 or not max_dist > 0 or max_age < 0 or budget < 1:
-            raise ValueError(f"MagicWarp iterations and the budget must be at least 1, max_dist positive and max_age at "
-                             f"least 0, got {iterations}, {budget}, {max_dist}, {max_age}")
+            raise ValueError(
+                f"MagicWarp iterations and the budget must be at least 1, max_dist positive and max_age at "
+                f"least 0, got {iterations}, {budget}, {max_dist}, {max_age}"
+            )
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
         self.refine, self.carry, self.budget = refine, carry, budget
-        self.detections = np.zeros((0, 2))            # the previous frame's detections, MagicWarp's input
+        self.detections = np.zeros((0, 2))  # the previous frame's detections, MagicWarp's input
         self.last_homography = np.eye(3)
-        self.live = np.zeros((0, 2))                 # positions of live tracks (detected or carried)
+        self.live = np.zeros((0, 2))  # positions of live tracks (detected or carried)
         self.live_ids = np.zeros(0, np.int64)
-        self.live_age = np.zeros(0, np.int64)         # frames since last detected
-        self.timings_ms: dict[str, float] = {}        # the last frame's stages
+        self.live_age = np.zeros(0, np.int64)  # frames since last detected
+        self.timings_ms: dict[str, float] = {}  # the last frame's stages
 
     def _homography(self, points: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
         """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: MagicWarp's
@@ -131,8 +145,11 @@ class MagicTracker(Tracker):
             pairs = match(self.live, points, np.eye(3), self.max_dist)
             if self.ransac:
                 pairs = _ransac_filter(pairs, self.live, points)
-        self.timings_ms = {"magicpoint": 1e3 * (detected - started), "magicwarp": 1e3 * (warped - detected),
-                           "match": 1e3 * (time.perf_counter() - warped)}
+        self.timings_ms = {
+            "magicpoint": 1e3 * (detected - started),
+            "magicwarp": 1e3 * (warped - detected),
+            "match": 1e3 * (time.perf_counter() - warped),
+        }
         ids = np.full(len(points), -1, np.int64)
         ids[pairs[:, 1]] = self.live_ids[pairs[:, 0]]
         fresh = ids < 0
@@ -141,10 +158,13 @@ class MagicTracker(Tracker):
         missed[pairs[:, 0]] = False
         keep = missed & (self.live_age < self.max_age)
         h, w = image.shape
-        reported = keep & self.carry & np.all((self.live >= 0) & (self.live <= [w - 1, h - 1]), axis=1)
+        reported = keep & self.carry & in_image(self.live, (h, w), margin=0.5)
         reported &= np.cumsum(reported) <= self.budget - len(points)  # live tracks are ordered by last detection
-        self.previous = Tracks(np.vstack([points, self.live[reported]]), np.concatenate([ids, self.live_ids[reported]]),
-                               np.concatenate([detections[:, 2], np.zeros(reported.sum())]).astype(np.float64))
+        self.previous = Tracks(
+            np.vstack([points, self.live[reported]]),
+            np.concatenate([ids, self.live_ids[reported]]),
+            np.concatenate([detections[:, 2], np.zeros(reported.sum())]).astype(np.float64),
+        )
         self.detections = points
         self.live = np.vstack([points, self.live[keep]])
         self.live_ids = np.concatenate([ids, self.live_ids[keep]])
@@ -159,8 +179,9 @@ class ClassicalTracker(Tracker):
         super().__init__()
         self.budget, self.min_distance, self.fb_max, self.quality = budget, min_distance, fb_max, quality
         self.previous_image: np.ndarray | None = None
-        self.lk = dict(winSize=(15, 15), maxLevel=2,
-                       criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+        self.lk = dict(
+            winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
+        )
 
     def _detect(self, image: np.ndarray, existing: np.ndarray, count: int) -> np.ndarray:
         mask = np.full(image.shape, 255, np.uint8)
@@ -178,12 +199,13 @@ class ClassicalTracker(Tracker):
             back, status_back, _ = cv2.calcOpticalFlowPyrLK(image, self.previous_image, p1, None, **self.lk)
             good = (status.ravel() == 1) & (status_back.ravel() == 1)
             good &= np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < self.fb_max
-            h, w = image.shape
             p1 = p1.reshape(-1, 2)
-            good &= (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+            good &= in_image(p1, image.shape, margin=0.5)
             kept = p1[good].astype(np.float64)
             pairs = np.stack([np.nonzero(good)[0], np.arange(good.sum())], 1)
-        fresh = self._detect(image, kept, self.budget - len(kept)) if len(kept) < self.budget * 0.7 else np.zeros((0, 2))
+        fresh = (
+            self._detect(image, kept, self.budget - len(kept)) if len(kept) < self.budget * 0.7 else np.zeros((0, 2))
+        )
         self.previous_image = image
         points = np.vstack([kept, fresh])
         return self._link(points, np.ones(len(points)), pairs)

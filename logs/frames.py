@@ -1,4 +1,5 @@
 """The typed frame record that is written to and read back from a log, and pose/quaternion helpers."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,11 +57,13 @@ def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:
 def matrix_from_quaternion(q: np.ndarray) -> np.ndarray:
     """3x3 rotation matrix of a quaternion (x, y, z, w); normalised first."""
     x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def pose_matrix(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:

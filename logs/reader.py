@@ -1,4 +1,5 @@
 """Reading runs back from MCAP as typed ``LogFrame``s, including interrupted (truncated) files."""
+
 from __future__ import annotations
 
 import json
@@ -11,8 +12,8 @@ import numpy as np
 from mcap.reader import NonSeekingReader
 from mcap_ros2.decoder import DecoderFactory
 
-from logs.frames import Correspondences, LogFrame, pose_matrix
-from logs.schemas import FRAME_TOPICS, TOPICS
+from deepslam.logs.frames import Correspondences, LogFrame, pose_matrix
+from deepslam.logs.schemas import FRAME_TOPICS, TOPICS
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -52,13 +53,24 @@ def _apply(frame: dict, topic: str, message) -> None:
     elif topic == "/estimate/pose":
         frame["T_estimate"] = _pose(message.pose)
     elif topic == "/frontend/tracks":
-        frame["tracks"] = np.stack([np.asarray(message.x, np.float64), np.asarray(message.y, np.float64),
-                                    np.asarray(message.score, np.float64), np.asarray(message.id, np.float64)], 1)
+        frame["tracks"] = np.stack(
+            [
+                np.asarray(message.x, np.float64),
+                np.asarray(message.y, np.float64),
+                np.asarray(message.score, np.float64),
+                np.asarray(message.id, np.float64),
+            ],
+            1,
+        )
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(
-            _stamp(message.reference_stamp), np.asarray(message.reference_index, np.int64),
-            np.asarray(message.current_index, np.int64), message.model, int(message.inliers),
-            np.asarray(message.t_ref_cur, np.float64).reshape(4, 4))
+            _stamp(message.reference_stamp),
+            np.asarray(message.reference_index, np.int64),
+            np.asarray(message.current_index, np.int64),
+            message.model,
+            int(message.inliers),
+            np.asarray(message.t_ref_cur, np.float64).reshape(4, 4),
+        )
 
 
 def read_frames(path: str | Path) -> Iterator[LogFrame]:
@@ -70,10 +82,12 @@ def read_frames(path: str | Path) -> Iterator[LogFrame]:
     parts: dict = {}
     stamp: int | None = None
     count = 0
-    topics: set[str] = set()      # the topics of a whole frame (those of the first one)
+    topics: set[str] = set()  # the topics of a whole frame (those of the first one)
     topics_now: set[str] = set()  # the topics of the frame being assembled
     with open(path, "rb") as f:
-        messages = NonSeekingReader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=list(TOPICS), log_time_order=False)
+        messages = NonSeekingReader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=list(TOPICS), log_time_order=False
+        )
         while True:
             try:
                 _, channel, message, decoded = next(messages)
@@ -83,8 +97,11 @@ def read_frames(path: str | Path) -> Iterator[LogFrame]:
                 if stamp is not None and topics and topics_now >= topics:  # the pending frame is whole
                     yield _complete(path, stamp, parts)
                     count += 1
-                warnings.warn(f"{path} is truncated ({type(error).__name__}: {error}); read {count} whole frames; "
-                              f"what came after them, in the file's unfinished last chunk, is missing", stacklevel=2)
+                warnings.warn(
+                    f"{path} is truncated ({type(error).__name__}: {error}); read {count} whole frames; "
+                    f"what came after them, in the file's unfinished last chunk, is missing",
+                    stacklevel=2,
+                )
                 return
             if message.log_time != stamp:
                 if stamp is not None:
@@ -100,12 +117,21 @@ def read_frames(path: str | Path) -> Iterator[LogFrame]:
 
 
 def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
-    missing = [t for t, key in zip(FRAME_TOPICS, ("image", "K")) if key not in parts]
+    missing = [t for t, key in zip(FRAME_TOPICS, ("image", "K"), strict=False) if key not in parts]
     if missing:
-        raise LogError(f"{path}: the frame at {stamp} ns lacks the topics {', '.join(missing)}; "
-                       f"is this a deepslam log?")
-    return LogFrame(stamp, parts["image"], parts["K"], parts.get("T_groundtruth"), parts.get("T_estimate"),
-                    None, parts.get("tracks"), parts.get("correspondences"))
+        raise LogError(
+            f"{path}: the frame at {stamp} ns lacks the topics {', '.join(missing)}; is this a deepslam log?"
+        )
+    return LogFrame(
+        stamp,
+        parts["image"],
+        parts["K"],
+        parts.get("T_groundtruth"),
+        parts.get("T_estimate"),
+        None,
+        parts.get("tracks"),
+        parts.get("correspondences"),
+    )
 
 
 def read_metadata(path: str | Path) -> dict:

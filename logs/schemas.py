@@ -3,6 +3,7 @@
 Standard messages are used wherever one fits, so Foxglove, evo and the ROS 2 tools read the logs;
 tracks and correspondences, which have no standard message, use two small ``deepslam_msgs`` types.
 """
+
 from __future__ import annotations
 
 _SEPARATOR = "=" * 80
@@ -22,15 +23,20 @@ _DEFINITIONS = {
     "tf2_msgs/TFMessage": "geometry_msgs/TransformStamped[] transforms",
     "sensor_msgs/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data",
     "sensor_msgs/RegionOfInterest": "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify",
-    "sensor_msgs/CameraInfo": ("std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n"
-                               "float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n"
-                               "uint32 binning_y\nRegionOfInterest roi"),
-    "deepslam_msgs/Tracks": ("# tracked image points of one frame (pixels, top-left pixel centre at 0,0)\n"
-                             "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"),
+    "sensor_msgs/CameraInfo": (
+        "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n"
+        "float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n"
+        "uint32 binning_y\nRegionOfInterest roi"
+    ),
+    "deepslam_msgs/Tracks": (
+        "# tracked image points of one frame (pixels, top-left pixel centre at 0,0)\n"
+        "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"
+    ),
     "deepslam_msgs/Correspondences": (
         "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"
         "std_msgs/Header header\nbuiltin_interfaces/Time reference_stamp\nuint32[] reference_index\n"
-        "uint32[] current_index\nstring model\nuint32 inliers\nfloat64[16] t_ref_cur"),
+        "uint32[] current_index\nstring model\nuint32 inliers\nfloat64[16] t_ref_cur"
+    ),
 }
 
 _DEPENDENCIES = {
@@ -69,7 +75,7 @@ def msgdef(name: str) -> str:
 
 
 def ros2_name(name: str) -> str:
-    """"pkg/Type" -> "pkg/msg/Type", the schema name ROS 2 tools expect."""
+    """ "pkg/Type" -> "pkg/msg/Type", the schema name ROS 2 tools expect."""
     package, type_name = name.split("/")
     return f"{package}/msg/{type_name}"
 
@@ -90,5 +96,5 @@ FRAME_TOPICS = ("/camera/image", "/camera/camera_info")
 """The topics that make a frame replayable."""
 
 WORLD_FRAME = "world"
-CAMERA_FRAME = "camera"          # the optical frame (x right, y down, z ahead)
+CAMERA_FRAME = "camera"  # the optical frame (x right, y down, z ahead)
 GROUNDTRUTH_FRAME = "camera_groundtruth"

@@ -3,6 +3,7 @@
 The file is flushed after every frame, so a run that is killed leaves a file readable up to its last
 complete chunk; ``close`` (also on Ctrl-C, through the context manager) writes the summary.
 """
+
 from __future__ import annotations
 
 import json
@@ -16,8 +17,8 @@ import numpy as np
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from logs.frames import LogFrame, quaternion_from_matrix
-from logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
+from deepslam.logs.frames import LogFrame, quaternion_from_matrix
+from deepslam.logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
 
 
 def _time(stamp_ns: int) -> dict:
@@ -74,13 +75,18 @@ class LogWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
         self._writer = Ros2Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        self._schemas = {topic: self._writer.register_msgdef(ros2_name(kind), msgdef(kind)) for topic, kind in TOPICS.items()}
-        self._writer.add_metadata("deepslam", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
+        self._schemas = {
+            topic: self._writer.register_msgdef(ros2_name(kind), msgdef(kind)) for topic, kind in TOPICS.items()
+        }
+        self._writer.add_metadata(
+            "deepslam", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
+        )
         self.frames = 0
 
     def _put(self, topic: str, message: dict, stamp_ns: int) -> None:
-        self._writer.write_message(topic, self._schemas[topic], message, log_time=stamp_ns, publish_time=stamp_ns,
-                                   sequence=self.frames)
+        self._writer.write_message(
+            topic, self._schemas[topic], message, log_time=stamp_ns, publish_time=stamp_ns, sequence=self.frames
+        )
 
     def write(self, frame: LogFrame) -> None:
         """Write every topic of one frame (those whose data the frame has); Ctrl-C waits for the whole frame."""
@@ -96,38 +102,84 @@ class LogWriter:
         self._put("/camera/image", {"header": _header(t, CAMERA_FRAME), "format": "png", "data": png.tobytes()}, t)
         K = np.asarray(frame.K, np.float64)
         P = np.hstack([K, np.zeros((3, 1))])
-        self._put("/camera/camera_info", {
-            "header": _header(t, CAMERA_FRAME), "height": h, "width": w, "distortion_model": "plumb_bob",
-            "d": [0.0] * 5, "k": K.ravel().tolist(), "r": np.eye(3).ravel().tolist(), "p": P.ravel().tolist(),
-            "binning_x": 0, "binning_y": 0,
-            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}, t)
+        self._put(
+            "/camera/camera_info",
+            {
+                "header": _header(t, CAMERA_FRAME),
+                "height": h,
+                "width": w,
+                "distortion_model": "plumb_bob",
+                "d": [0.0] * 5,
+                "k": K.ravel().tolist(),
+                "r": np.eye(3).ravel().tolist(),
+                "p": P.ravel().tolist(),
+                "binning_x": 0,
+                "binning_y": 0,
+                "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
+            },
+            t,
+        )
         transforms = []
         if frame.T_groundtruth is not None:
             self._put("/groundtruth/pose", {"header": _header(t, WORLD_FRAME), "pose": _pose(frame.T_groundtruth)}, t)
-            transforms.append({"header": _header(t, WORLD_FRAME), "child_frame_id": GROUNDTRUTH_FRAME,
-                               "transform": _transform(frame.T_groundtruth)})
+            transforms.append(
+                {
+                    "header": _header(t, WORLD_FRAME),
+                    "child_frame_id": GROUNDTRUTH_FRAME,
+                    "transform": _transform(frame.T_groundtruth),
+                }
+            )
         if frame.T_estimate is not None:
             self._put("/estimate/pose", {"header": _header(t, WORLD_FRAME), "pose": _pose(frame.T_estimate)}, t)
-            transforms.append({"header": _header(t, WORLD_FRAME), "child_frame_id": CAMERA_FRAME,
-                               "transform": _transform(frame.T_estimate)})
+            transforms.append(
+                {
+                    "header": _header(t, WORLD_FRAME),
+                    "child_frame_id": CAMERA_FRAME,
+                    "transform": _transform(frame.T_estimate),
+                }
+            )
             if frame.covariance is not None:
-                self._put("/estimate/pose_covariance", {"header": _header(t, WORLD_FRAME), "pose": {
-                    "pose": _pose(frame.T_estimate), "covariance": ros_covariance(frame.covariance, frame.T_estimate)}}, t)
+                self._put(
+                    "/estimate/pose_covariance",
+                    {
+                        "header": _header(t, WORLD_FRAME),
+                        "pose": {
+                            "pose": _pose(frame.T_estimate),
+                            "covariance": ros_covariance(frame.covariance, frame.T_estimate),
+                        },
+                    },
+                    t,
+                )
         if transforms:
             self._put("/tf", {"transforms": transforms}, t)
         if frame.tracks is not None:
             tracks = np.asarray(frame.tracks, np.float64).reshape(-1, 4)
-            self._put("/frontend/tracks", {"header": _header(t, CAMERA_FRAME), "x": tracks[:, 0].astype(np.float32).tolist(),
-                                           "y": tracks[:, 1].astype(np.float32).tolist(),
-                                           "score": tracks[:, 2].astype(np.float32).tolist(),
-                                           "id": tracks[:, 3].astype(np.int64).tolist()}, t)
+            self._put(
+                "/frontend/tracks",
+                {
+                    "header": _header(t, CAMERA_FRAME),
+                    "x": tracks[:, 0].astype(np.float32).tolist(),
+                    "y": tracks[:, 1].astype(np.float32).tolist(),
+                    "score": tracks[:, 2].astype(np.float32).tolist(),
+                    "id": tracks[:, 3].astype(np.int64).tolist(),
+                },
+                t,
+            )
         c = frame.correspondences
         if c is not None:
-            self._put("/frontend/correspondences", {
-                "header": _header(t, CAMERA_FRAME), "reference_stamp": _time(c.reference_stamp_ns),
-                "reference_index": np.asarray(c.reference_index, np.uint32).tolist(),
-                "current_index": np.asarray(c.current_index, np.uint32).tolist(),
-                "model": c.model, "inliers": int(c.inliers), "t_ref_cur": np.asarray(c.T_ref_cur, np.float64).ravel().tolist()}, t)
+            self._put(
+                "/frontend/correspondences",
+                {
+                    "header": _header(t, CAMERA_FRAME),
+                    "reference_stamp": _time(c.reference_stamp_ns),
+                    "reference_index": np.asarray(c.reference_index, np.uint32).tolist(),
+                    "current_index": np.asarray(c.current_index, np.uint32).tolist(),
+                    "model": c.model,
+                    "inliers": int(c.inliers),
+                    "t_ref_cur": np.asarray(c.T_ref_cur, np.float64).ravel().tolist(),
+                },
+                t,
+            )
         self.frames += 1
         self._file.flush()
 

@@ -1,4 +1,5 @@
 """Pinhole cameras and rigid transforms (OpenCV camera frame: x right, y down, z ahead)."""
+
 from __future__ import annotations
 
 import cv2
@@ -30,7 +31,7 @@ def invert(T: np.ndarray) -> np.ndarray:
     return inverse
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+def look_at(eye: np.ndarray, target: np.ndarray, up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> np.ndarray:
     """``T_world_cam`` of a camera at ``eye`` looking at ``target``, image "up" towards world ``up``."""
     z = np.asarray(target, np.float64) - eye
     z /= np.linalg.norm(z)

@@ -3,12 +3,15 @@
 Conventions: pixel coordinates are float (x, y) with the centre of the top-left pixel at (0, 0);
 ``H_ab`` maps points of image a to image b and is stored with ``H[2, 2] == 1``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from deepslam.geometry import in_image, warp_points
 
 
 @dataclass(frozen=True)
@@ -32,28 +35,15 @@ def normalize(H: np.ndarray) -> np.ndarray:
     return H / H[..., 2:3, 2:3]
 
 
-def warp_points(points: np.ndarray, H: np.ndarray) -> np.ndarray:
-    """Apply a homography to (N, 2) points; returns (N, 2) float64."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    homogeneous = points @ H[:, :2].T + H[:, 2]
-    return homogeneous[:, :2] / homogeneous[:, 2:3]
-
-
-def inside(points: np.ndarray, size: tuple[int, int], margin: float = 0.0) -> np.ndarray:
-    """Boolean mask of (N, 2) points lying in an image of ``size`` (H, W), pixel centres inclusive."""
-    h, w = size
-    x, y = points[:, 0], points[:, 1]
-    return (x >= -0.5 + margin) & (x <= w - 0.5 - margin) & (y >= -0.5 + margin) & (y <= h - 0.5 - margin)
-
-
 def image_corners(size: tuple[int, int]) -> np.ndarray:
     """The four outer corners of an image of ``size`` (H, W) in pixel coordinates, (4, 2)."""
     h, w = size
     return np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
 
 
-def sample_homography(rng: np.random.Generator, size: tuple[int, int],
-                      config: HomographyConfig = HomographyConfig()) -> np.ndarray:
+def sample_homography(
+    rng: np.random.Generator, size: tuple[int, int], config: HomographyConfig = HomographyConfig()
+) -> np.ndarray:
     """A random homography ``H`` mapping an image of ``size`` (H, W) to its warped version, (3, 3)."""
     h, w = size
     src = image_corners(size)
@@ -70,13 +60,19 @@ def sample_homography(rng: np.random.Generator, size: tuple[int, int],
 def warp_image(image: np.ndarray, H: np.ndarray, border_value: int = 0) -> np.ndarray:
     """Warp a uint8 image with ``H`` (source to destination) into an image of the same size."""
     h, w = image.shape[:2]
-    return cv2.warpPerspective(image, H, (w, h), flags=cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_REFLECT_101 if border_value < 0 else cv2.BORDER_CONSTANT,
-                               borderValue=max(border_value, 0))
+    return cv2.warpPerspective(
+        image,
+        H,
+        (w, h),
+        flags=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REFLECT_101 if border_value < 0 else cv2.BORDER_CONSTANT,
+        borderValue=max(border_value, 0),
+    )
 
 
-def warp_image_and_points(image: np.ndarray, points: np.ndarray, H: np.ndarray,
-                          border_value: int = -1) -> tuple[np.ndarray, np.ndarray]:
+def warp_image_and_points(
+    image: np.ndarray, points: np.ndarray, H: np.ndarray, border_value: int = -1
+) -> tuple[np.ndarray, np.ndarray]:
     """Warp an image and its (N, 2) points with ``H``; points that leave the image are dropped.
 
     ``border_value`` < 0 reflects the image at its border (no black wedges), else fills with it.
@@ -84,4 +80,4 @@ def warp_image_and_points(image: np.ndarray, points: np.ndarray, H: np.ndarray,
     """
     warped = warp_image(image, H, border_value)
     moved = warp_points(points, H)
-    return warped, moved[inside(moved, image.shape[:2])].astype(np.float32)
+    return warped, moved[in_image(moved, image.shape[:2])].astype(np.float32)

@@ -4,6 +4,7 @@ Every function takes a uint8 HxW image and a ``numpy.random.Generator`` and retu
 Magnitude ``s``: 0 is the clean image, 1 full noise, 2 pure random noise; in between the images are
 linearly interpolated (the paper's "Effect of Noise Magnitude").
 """
+
 from __future__ import annotations
 
 from typing import Callable
@@ -46,8 +47,9 @@ def speckle(image: np.ndarray, rng: np.random.Generator, max_prob: float = 0.003
     return out
 
 
-def shade(image: np.ndarray, rng: np.random.Generator, transparency: tuple[float, float] = (-0.5, 0.8),
-          max_ellipses: int = 8) -> np.ndarray:
+def shade(
+    image: np.ndarray, rng: np.random.Generator, transparency: tuple[float, float] = (-0.5, 0.8), max_ellipses: int = 8
+) -> np.ndarray:
     """Additive shade: blurred random ellipses darken (or lighten) parts of the image."""
     h, w = image.shape
     small = np.zeros((h // 4, w // 4), np.float32)
@@ -140,7 +142,7 @@ def relit_sequence(image: np.ndarray, frames: int, rng: np.random.Generator) -> 
     for i in range(frames):
         t = i / max(frames - 1, 1)
         cx, cy = start + t * (end - start)
-        light = 0.5 + 0.8 * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * radius ** 2))
+        light = 0.5 + 0.8 * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * radius**2))
         gain = 1.0 + 0.25 * np.sin(2 * np.pi * t + phase)
         gamma = 1.0 + 0.3 * np.sin(4 * np.pi * t + phase / 2)
         frame = 255.0 * np.clip(base * light * gain, 0, 1) ** gamma + rng.normal(0, 2.0, (h, w))

@@ -14,16 +14,18 @@ A ``clean_a_share`` of the pairs (of any kind) is drawn as the breakdown evaluat
 A keeps every point, with no dropout and no spurious points; image B holds every point that stays in
 view plus spurious ones (up to ``max_extra`` times A's point count).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from sim.camera import intrinsics, invert, pose, project, transform
-from sim.homography import HomographyConfig, inside, sample_homography, warp_points
-from sim.pointsets import detector_points
-from sim.trajectories import random_walk
+from deepslam.geometry import in_image, warp_points
+from deepslam.sim.camera import intrinsics, invert, pose, project, transform
+from deepslam.sim.homography import HomographyConfig, sample_homography
+from deepslam.sim.pointsets import detector_points
+from deepslam.sim.trajectories import random_walk
 
 GEOMETRIES = ("plane", "sphere", "cube", "mixed", "homography")
 
@@ -35,24 +37,27 @@ class PairConfig:
     size: tuple[int, int] = (120, 160)
     points: tuple[int, int] = (5, 200)
     motion: float = 1.0
-    max_step: float = 0.6          # translation between the two frames at motion 1, in units of scene depth
-    max_rotation: float = 0.45     # radians between the two frames at motion 1, about a random axis ...
-    max_roll: float = 0.6          # ... plus up to this much about the optical axis (in-plane rotation)
+    max_step: float = 0.6  # translation between the two frames at motion 1, in units of scene depth
+    max_rotation: float = 0.45  # radians between the two frames at motion 1, about a random axis ...
+    max_roll: float = 0.6  # ... plus up to this much about the optical axis (in-plane rotation)
     min_overlap: float = 0.3
-    match_dropout: float = 0.5     # fraction of matches broken by removing one side
-    point_dropout: float = 0.25    # fraction of the remaining points removed in each image
-    max_extra: float = 0.5         # up to this fraction of spurious points added to each image
-    clean_a_share: float = 0.0     # share of pairs with a clean image A and spurious points in B only
+    match_dropout: float = 0.5  # fraction of matches broken by removing one side
+    point_dropout: float = 0.25  # fraction of the remaining points removed in each image
+    max_extra: float = 0.5  # up to this fraction of spurious points added to each image
+    clean_a_share: float = 0.0  # share of pairs with a clean image A and spurious points in B only
     fov_deg: tuple[float, float] = (55.0, 85.0)
     geometry_weights: tuple[float, ...] = (0.4, 0.15, 0.15, 0.3, 0.0)  # in the order of GEOMETRIES
-    homography: HomographyConfig = HomographyConfig(translation=0.3, rotation=np.pi / 4, scale=0.35,
-                                                    perspective=0.1)  # "homography" pairs at motion 1
+    homography: HomographyConfig = HomographyConfig(
+        translation=0.3, rotation=np.pi / 4, scale=0.35, perspective=0.1
+    )  # "homography" pairs at motion 1
 
     def __post_init__(self):
         weights = self.geometry_weights
         if len(weights) != len(GEOMETRIES) or min(weights) < 0 or sum(weights) <= 0:
-            raise ValueError(f"geometry_weights needs {len(GEOMETRIES)} non-negative weights, not all zero "
-                             f"({', '.join(GEOMETRIES)}), got {tuple(weights)}")
+            raise ValueError(
+                f"geometry_weights needs {len(GEOMETRIES)} non-negative weights, not all zero "
+                f"({', '.join(GEOMETRIES)}), got {tuple(weights)}"
+            )
         for name in ("max_extra", "clean_a_share"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
@@ -85,13 +90,15 @@ def _cast(rays: np.ndarray, rng: np.random.Generator, geometry: str, depth: floa
         point = np.array([0.0, 0.0, depth * (1.6 if geometry == "mixed" else 1.0)])
         with np.errstate(divide="ignore", invalid="ignore"):
             keep((point @ normal) / (rays @ normal))
-    objects = {"sphere": ["sphere"], "cube": ["cube"], "mixed": list(rng.choice(["sphere", "cube"], 2))}.get(geometry, [])
+    objects = {"sphere": ["sphere"], "cube": ["cube"], "mixed": list(rng.choice(["sphere", "cube"], 2))}.get(
+        geometry, []
+    )
     for kind in objects:
         centre = np.array([*rng.uniform(-0.3, 0.3, 2) * depth, depth * rng.uniform(0.8, 1.2)])
         radius = depth * rng.uniform(0.2, 0.45)
         if kind == "sphere":
             b = rays @ centre
-            disc = b ** 2 - (centre @ centre - radius ** 2)
+            disc = b**2 - (centre @ centre - radius**2)
             with np.errstate(invalid="ignore"):
                 keep(np.where(disc >= 0, b - np.sqrt(disc), np.inf))
         else:
@@ -140,27 +147,43 @@ def _camera_pair(rng: np.random.Generator, config: PairConfig, kind: str, count:
         return None
     cloud = (rays * distance[:, None])[hit][:count]
     gap = int(rng.integers(1, 6))
-    walk = random_walk(rng, gap + 1, config.motion * config.max_step * depth * rng.uniform(0, 1) / gap,
-                       config.motion * config.max_rotation * rng.uniform(0, 1) / gap, segment_frames=2)
+    walk = random_walk(
+        rng,
+        gap + 1,
+        config.motion * config.max_step * depth * rng.uniform(0, 1) / gap,
+        config.motion * config.max_rotation * rng.uniform(0, 1) / gap,
+        segment_frames=2,
+    )
     roll = pose(np.array([0.0, 0.0, config.motion * config.max_roll * rng.uniform(-1, 1)]), np.zeros(3))
     uv_a, _ = project(cloud, K)
     uv_b, z_b = project(transform(invert(walk[-1] @ roll), cloud), K)
-    return uv_a, uv_b, (z_b > 0.1) & inside(np.nan_to_num(uv_b, nan=-1e9), size)
+    return uv_a, uv_b, (z_b > 0.1) & in_image(np.nan_to_num(uv_b, nan=-1e9), size)
 
 
 def _homography_pair(rng: np.random.Generator, config: PairConfig, count: int):
     """Random points of image A (N, 2), moved by a random homography into B, and which stay in B."""
     ranges = config.homography
     amount = config.motion * rng.uniform()
-    H = sample_homography(rng, config.size, HomographyConfig(ranges.translation * amount, ranges.rotation * amount,
-                                                             ranges.scale * amount, ranges.perspective * amount))
+    H = sample_homography(
+        rng,
+        config.size,
+        HomographyConfig(
+            ranges.translation * amount, ranges.rotation * amount, ranges.scale * amount, ranges.perspective * amount
+        ),
+    )
     uv_a = detector_points(rng, count, config.size)
     uv_b = warp_points(uv_a, H)
-    return uv_a, uv_b, inside(uv_b, config.size)
+    return uv_a, uv_b, in_image(uv_b, config.size)
 
 
-def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray, uv_b: np.ndarray,
-                  visible: np.ndarray, strength: float = 1.0) -> PointPair:
+def _with_dropout(
+    rng: np.random.Generator,
+    config: PairConfig,
+    uv_a: np.ndarray,
+    uv_b: np.ndarray,
+    visible: np.ndarray,
+    strength: float = 1.0,
+) -> PointPair:
     """Apply match dropout, point dropout (``strength`` times the configured fractions) and spurious
     points; keep all true matches for the loss."""
     keep_a = np.ones(len(uv_a), bool)
@@ -172,8 +195,12 @@ def _with_dropout(rng: np.random.Generator, config: PairConfig, uv_a: np.ndarray
     keep_a &= rng.random(len(uv_a)) >= strength * config.point_dropout
     keep_b &= rng.random(len(uv_a)) >= strength * config.point_dropout
     kept_a, kept_b = uv_a[keep_a], uv_b[keep_b]
-    return PointPair(_spurious(rng, config, kept_a, len(kept_a)), _spurious(rng, config, kept_b, len(kept_b)),
-                     uv_a[visible], uv_b[visible])
+    return PointPair(
+        _spurious(rng, config, kept_a, len(kept_a)),
+        _spurious(rng, config, kept_b, len(kept_b)),
+        uv_a[visible],
+        uv_b[visible],
+    )
 
 
 def _spurious(rng: np.random.Generator, config: PairConfig, points: np.ndarray, count: int) -> np.ndarray:

@@ -7,6 +7,7 @@ MagicWarp's input) holds one point per cell. Every motion is interpolated from t
 by its magnitude: translation to the right (px), in-plane rotation about the centre (degrees),
 zoom-in scale (factor), and a random homography whose mean corner displacement is the magnitude (px).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -14,13 +15,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from sim.homography import image_corners, inside, normalize, warp_points
+from deepslam.geometry import in_image, warp_points
+from deepslam.sim.homography import image_corners, normalize
 
 MOTIONS = ("translation", "rotation", "scale", "random_h")
 
 
-def motion_homography(kind: str, magnitude: float, size: tuple[int, int],
-                      direction: np.ndarray | None = None) -> np.ndarray:
+def motion_homography(
+    kind: str, magnitude: float, size: tuple[int, int], direction: np.ndarray | None = None
+) -> np.ndarray:
     """Homography (3, 3) of a motion ``kind`` at ``magnitude``.
 
     For "random_h", ``direction`` (4, 2) holds the corner displacement pattern with mean norm 1
@@ -52,7 +55,9 @@ def detector_points(rng: np.random.Generator, count: int, size: tuple[int, int],
     h, w = size
     rows, cols = h // cell, w // cell
     if not 0 <= count <= rows * cols:
-        raise ValueError(f"{count} points do not fit one per {cell}x{cell} cell of a {h}x{w} image ({rows * cols} cells)")
+        raise ValueError(
+            f"{count} points do not fit one per {cell}x{cell} cell of a {h}x{w} image ({rows * cols} cells)"
+        )
     row, col = np.divmod(rng.choice(rows * cols, count, replace=False), cols)
     return np.c_[col, row] * cell + rng.uniform(-0.5, cell - 0.5, (count, 2))
 
@@ -77,12 +82,13 @@ class PointSetPair:
         return PointSetPair(self.points_a, self.points_b[partnered], true_index)
 
 
-def make_pair(rng: np.random.Generator, H: np.ndarray, count: int, extra: float,
-              size: tuple[int, int] = (120, 160)) -> PointSetPair:
+def make_pair(
+    rng: np.random.Generator, H: np.ndarray, count: int, extra: float, size: tuple[int, int] = (120, 160)
+) -> PointSetPair:
     """``count`` random points in A warped by ``H`` into B, plus ``extra * count`` spurious B points."""
     points_a = detector_points(rng, count, size)
     moved = warp_points(points_a, H)
-    stays = inside(moved, size)
+    stays = in_image(moved, size)
     spurious = detector_points(rng, int(round(extra * count)), size)
     points_b = np.vstack([moved[stays], spurious])
     order = rng.permutation(len(points_b))

@@ -1,4 +1,5 @@
 """A simulated camera run: a world, a trajectory, a camera, lighting and noise, rendered frame by frame."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -6,9 +7,10 @@ from typing import Iterator
 
 import numpy as np
 
-from sim import trajectories, world as worlds
-from sim.camera import intrinsics
-from sim.shapes import check_size
+from deepslam.sim import trajectories
+from deepslam.sim import world as worlds
+from deepslam.sim.camera import intrinsics
+from deepslam.sim.shapes import check_size
 
 
 @dataclass(frozen=True)
@@ -18,10 +20,10 @@ class ScenarioConfig:
     frames: int = 60
     size: tuple[int, int] = (120, 160)
     fov_deg: float = 70.0
-    speed: float = 0.5          # world units (m) per second
+    speed: float = 0.5  # world units (m) per second
     fps: float = 10.0
-    noise: float = 0.0          # photometric noise magnitude s (sim.noise), 0 clean, 1 full
-    lighting: float = 0.0       # amplitude of a slow global brightness change (0.3 = +-30%)
+    noise: float = 0.0  # photometric noise magnitude s (sim.noise), 0 clean, 1 full
+    lighting: float = 0.0  # amplitude of a slow global brightness change (0.3 = +-30%)
     seed: int = 0
 
 
@@ -50,8 +52,9 @@ class Scenario:
             raise ValueError(f"noise magnitude must lie in [0, 2], got {config.noise}")
         self.config = config
         self.world = worlds.make(config.world, config.seed)
-        self.trajectory = trajectories.make(config.trajectory, config.frames, config.speed, config.fps,
-                                            seed=config.seed, target=self.world.target)
+        self.trajectory = trajectories.make(
+            config.trajectory, config.frames, config.speed, config.fps, seed=config.seed, target=self.world.target
+        )
         self.K = intrinsics(config.size, config.fov_deg)
 
     def plane_distance(self) -> float:
@@ -65,7 +68,7 @@ class Scenario:
     def __iter__(self) -> Iterator[SimFrame]:
         c = self.config
         rng = np.random.default_rng([c.seed, 1])
-        for index, (T, stamp) in enumerate(zip(self.trajectory.poses, self.trajectory.stamps_ns)):
+        for index, (T, stamp) in enumerate(zip(self.trajectory.poses, self.trajectory.stamps_ns, strict=False)):
             light = 1.0 + c.lighting * np.sin(2 * np.pi * index / max(c.frames, 2))
             frame = self.world.render(T, self.K, c.size, rng, c.noise, light)
             yield SimFrame(frame.image, self.K, int(stamp), T, frame.landmark_ids, frame.landmark_pixels)

@@ -5,6 +5,7 @@ area-downscaled, so edges are anti-aliased and corners are sub-pixel accurate. C
 or outside the image are not labels. Coordinates follow the project convention: float (x, y), the
 centre of the top-left pixel at (0, 0).
 """
+
 from __future__ import annotations
 
 from typing import Callable, Iterator
@@ -12,15 +13,25 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from sim.homography import HomographyConfig, inside, sample_homography, warp_image_and_points
-from sim.noise import full_noise, random_noise
+from deepslam.geometry import in_image
+from deepslam.sim.homography import HomographyConfig, sample_homography, warp_image_and_points
+from deepslam.sim.noise import full_noise, random_noise
 
 CATEGORIES: tuple[str, ...] = (
-    "triangles", "quadrilaterals", "stars", "lines", "checkerboards",
-    "cubes", "stripes", "multiple_shapes", "ellipses", "noise",
+    "triangles",
+    "quadrilaterals",
+    "stars",
+    "lines",
+    "checkerboards",
+    "cubes",
+    "stripes",
+    "multiple_shapes",
+    "ellipses",
+    "noise",
 )
 """The ten categories; the last two ("ellipses", "noise") have no corners."""
 
+DEFAULT_WARP = HomographyConfig()  # the training images' homographic warps
 SUPERSAMPLE = 4
 _SHIFT = 4  # OpenCV fixed-point bits for sub-pixel drawing
 _MIN_CONTRAST = 50
@@ -43,8 +54,15 @@ class _Canvas:
 
     def line(self, a: np.ndarray, b: np.ndarray, colour: int, thickness: float) -> None:
         pa, pb = self._fixed(a), self._fixed(b)
-        cv2.line(self.image, tuple(int(v) for v in pa), tuple(int(v) for v in pb), int(colour),
-                 max(1, int(round(thickness * SUPERSAMPLE))), cv2.LINE_8, _SHIFT)
+        cv2.line(
+            self.image,
+            tuple(int(v) for v in pa),
+            tuple(int(v) for v in pb),
+            int(colour),
+            max(1, int(round(thickness * SUPERSAMPLE))),
+            cv2.LINE_8,
+            _SHIFT,
+        )
 
     def ellipse(self, centre: np.ndarray, axes: tuple[float, float], angle: float, colour: int) -> None:
         c = tuple(int(v) for v in self._fixed(centre))
@@ -60,8 +78,9 @@ def _background(rng: np.random.Generator, size: tuple[int, int]) -> tuple[np.nda
     """A smooth, textured, non-uniform background and its mean grey level."""
     h, w = size
     mean = int(rng.integers(0, 256))
-    texture = cv2.resize(rng.random((max(2, h // 16), max(2, w // 16))).astype(np.float32), (w, h),
-                         interpolation=cv2.INTER_CUBIC)
+    texture = cv2.resize(
+        rng.random((max(2, h // 16), max(2, w // 16))).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC
+    )
     amplitude = rng.uniform(0, 40)
     gradient = np.linspace(-1, 1, w, dtype=np.float32)[None, :] * rng.uniform(-20, 20)
     image = mean + amplitude * (texture - 0.5) + gradient
@@ -70,8 +89,9 @@ def _background(rng: np.random.Generator, size: tuple[int, int]) -> tuple[np.nda
 
 def _colour(rng: np.random.Generator, away_from: int) -> int:
     """A grey level at least ``_MIN_CONTRAST`` away from ``away_from``."""
-    choices = np.concatenate([np.arange(0, max(0, away_from - _MIN_CONTRAST)),
-                              np.arange(min(256, away_from + _MIN_CONTRAST), 256)])
+    choices = np.concatenate(
+        [np.arange(0, max(0, away_from - _MIN_CONTRAST)), np.arange(min(256, away_from + _MIN_CONTRAST), 256)]
+    )
     return int(rng.choice(choices))
 
 
@@ -107,7 +127,9 @@ def _is_convex(vertices: np.ndarray) -> bool:
     return bool(np.all(cross > 0) or np.all(cross < 0))
 
 
-def _centre_and_radius(rng: np.random.Generator, size: tuple[int, int], low: float, high: float) -> tuple[np.ndarray, float]:
+def _centre_and_radius(
+    rng: np.random.Generator, size: tuple[int, int], low: float, high: float
+) -> tuple[np.ndarray, float]:
     h, w = size
     radius = rng.uniform(low, high) * min(h, w)
     centre = rng.uniform([radius * 0.6, radius * 0.6], [w - radius * 0.6, h - radius * 0.6])
@@ -120,12 +142,14 @@ def _polygon(n: int) -> Callable:
         vertices = _random_polygon(rng, n, centre, radius)
         canvas.polygon(vertices, _colour(rng, mean))
         return vertices
+
     return draw
 
 
 def _segments_intersect(p1, p2, q1, q2) -> bool:
     def orient(a, b, c):
         return np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+
     return orient(p1, p2, q1) != orient(p1, p2, q2) and orient(q1, q2, p1) != orient(q1, q2, p2)
 
 
@@ -145,9 +169,12 @@ def _draw_lines(canvas: _Canvas, rng: np.random.Generator, mean: int) -> np.ndar
             b = rng.uniform([0, 0], [w - 1, h - 1])
             if np.linalg.norm(a - b) < 0.25 * min(h, w):
                 continue
-            clear = all(not _segments_intersect(a, b, c, d)
-                        and min(_point_segment_distance(p, c, d) for p in (a, b)) > 6
-                        and min(_point_segment_distance(p, a, b) for p in (c, d)) > 6 for c, d in segments)
+            clear = all(
+                not _segments_intersect(a, b, c, d)
+                and min(_point_segment_distance(p, c, d) for p in (a, b)) > 6
+                and min(_point_segment_distance(p, a, b) for p in (c, d)) > 6
+                for c, d in segments
+            )
             if clear:
                 segments.append((a, b))
                 canvas.line(a, b, _colour(rng, mean), rng.uniform(1.0, 3.0))
@@ -200,7 +227,7 @@ def _draw_cube(canvas: _Canvas, rng: np.random.Generator, mean: int) -> np.ndarr
     projected = rotated[:, :2] * scale + centre
     visible: set[int] = set()
     colours = [_colour(rng, mean) for _ in faces]
-    for face, colour in zip(faces, colours):
+    for face, colour in zip(faces, colours, strict=False):
         a, b, c = (rotated[i] for i in face[:3])
         if np.cross(b - a, c - a)[2] < 0:  # faces the viewer (z into the screen)
             canvas.polygon(projected[list(face)], colour)
@@ -224,7 +251,7 @@ def _draw_stripes(canvas: _Canvas, rng: np.random.Generator, mean: int) -> np.nd
 
     colour = _colour(rng, mean)
     corners = []
-    for left, right in zip(edges[0::2], edges[1::2]):
+    for left, right in zip(edges[0::2], edges[1::2], strict=False):
         quad = place([[left, 0], [right, 0], [right, height], [left, height]])
         canvas.polygon(quad, colour)
         corners.append(quad)
@@ -286,7 +313,9 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
     return int(size[0]), int(size[1])
 
 
-def render(category: str, rng: np.random.Generator, size: tuple[int, int] = (120, 160)) -> tuple[np.ndarray, np.ndarray]:
+def render(
+    category: str, rng: np.random.Generator, size: tuple[int, int] = (120, 160)
+) -> tuple[np.ndarray, np.ndarray]:
     """Render one image of ``category``.
 
     Returns (image uint8 (H, W), corners float32 (K, 2) in (x, y) pixels); K is 0 for the negative
@@ -301,12 +330,15 @@ def render(category: str, rng: np.random.Generator, size: tuple[int, int] = (120
     canvas = _Canvas(background)
     corners = np.asarray(_DRAW[category](canvas, rng, mean), np.float64).reshape(-1, 2)
     image = cv2.GaussianBlur(canvas.result(), (0, 0), 0.5) if rng.random() < 0.5 else canvas.result()
-    return image, corners[inside(corners, size, margin=0.5)].astype(np.float32)
+    return image, corners[in_image(corners, size, margin=0.5)].astype(np.float32)
 
 
-def training_stream(rng: np.random.Generator, size: tuple[int, int] = (120, 160),
-                    homography: HomographyConfig | None = HomographyConfig(),
-                    clean_share: float = 0.0) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def training_stream(
+    rng: np.random.Generator,
+    size: tuple[int, int] = (120, 160),
+    homography: HomographyConfig | None = DEFAULT_WARP,
+    clean_share: float = 0.0,
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """An endless stream of (image, corners) for training: a random category, a random homographic
     warp, then the full photometric noise, except for a ``clean_share`` (0..1) of the images, which
     stay clean. Never the same example twice for a fresh ``rng``."""
@@ -320,8 +352,12 @@ def training_stream(rng: np.random.Generator, size: tuple[int, int] = (120, 160)
         yield (image if clean else full_noise(image, rng)), corners
 
 
-def evaluation_set(per_category: int = 1000, seed: int = 0, size: tuple[int, int] = (120, 160),
-                   categories: tuple[str, ...] = CATEGORIES) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def evaluation_set(
+    per_category: int = 1000,
+    seed: int = 0,
+    size: tuple[int, int] = (120, 160),
+    categories: tuple[str, ...] = CATEGORIES,
+) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """A fixed, seeded evaluation set: ``per_category`` clean (category, image, corners) per category.
 
     Each category draws from its own seed stream, so a larger set extends a smaller one.

@@ -1,4 +1,5 @@
 """Camera trajectories: ground-truth ``T_world_cam`` (4x4) per frame and integer-nanosecond stamps."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -6,7 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from sim.camera import look_at, pose
+from deepslam.geometry import path_length
+from deepslam.sim.camera import look_at, pose
 
 KINDS = ("circle", "figure8", "line", "random")
 
@@ -22,11 +24,12 @@ class Trajectory:
         return len(self.poses)
 
     def path_length(self) -> float:
-        return float(np.linalg.norm(np.diff(self.poses[:, :3, 3], axis=0), axis=1).sum())
+        return path_length(self.poses)
 
 
-def random_walk(rng: np.random.Generator, frames: int, step: float, angle_step: float,
-                segment_frames: int = 10) -> np.ndarray:
+def random_walk(
+    rng: np.random.Generator, frames: int, step: float, angle_step: float, segment_frames: int = 10
+) -> np.ndarray:
     """Piecewise-linear motion with rotation about random axes, starting at the identity.
 
     Each segment of ``segment_frames`` frames moves ``step`` per frame along a random direction
@@ -43,8 +46,16 @@ def random_walk(rng: np.random.Generator, frames: int, step: float, angle_step: 
     return np.stack(poses)
 
 
-def make(kind: str, frames: int, speed: float = 0.5, fps: float = 30.0, radius: float = 2.0,
-         seed: int = 0, target: np.ndarray = np.zeros(3), height: float = 0.0) -> Trajectory:
+def make(
+    kind: str,
+    frames: int,
+    speed: float = 0.5,
+    fps: float = 30.0,
+    radius: float = 2.0,
+    seed: int = 0,
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    height: float = 0.0,
+) -> Trajectory:
     """A trajectory of ``kind`` (one of ``KINDS``) with ``frames`` frames at ``fps``.
 
     ``speed`` is in world units per second. circle/figure8 orbit ``target`` at about ``radius``
@@ -76,7 +87,7 @@ def make(kind: str, frames: int, speed: float = 0.5, fps: float = 30.0, radius: 
             offsets = np.stack([np.sin(phase), np.zeros(frames), np.sin(2 * phase) / 2], 1) * orbit
         eyes = target + np.array([0.0, -radius, height]) + offsets
         looks = np.repeat(target[None], frames, 0) + offsets * 0.5
-    return Trajectory(np.stack([look_at(e, t) for e, t in zip(eyes, looks)]), stamps)
+    return Trajectory(np.stack([look_at(e, t) for e, t in zip(eyes, looks, strict=False)]), stamps)
 
 
 def relative_motion(rng: np.random.Generator, max_translation: float, max_rotation: float) -> np.ndarray:

@@ -5,6 +5,7 @@ pixel's ray onto its plane and sampling the texture there, so perspective and oc
 Landmarks are points on the surfaces; a landmark is visible when it projects inside the image and
 the z-buffer there holds its depth.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -13,13 +14,26 @@ import cv2
 import numpy as np
 import skimage.data
 
-from sim import noise as noise_module
-from sim.camera import invert, project, transform
-from sim.shapes import CATEGORIES, render
+from deepslam.geometry import in_image
+from deepslam.sim import noise as noise_module
+from deepslam.sim.camera import invert, project, transform
+from deepslam.sim.shapes import CATEGORIES, render
 
 WORLDS = ("plane", "room")
-_PHOTOS = ("camera", "brick", "grass", "gravel", "coins", "text", "page", "clock", "astronaut", "coffee",
-           "chelsea", "rocket")
+_PHOTOS = (
+    "camera",
+    "brick",
+    "grass",
+    "gravel",
+    "coins",
+    "text",
+    "page",
+    "clock",
+    "astronaut",
+    "coffee",
+    "chelsea",
+    "rocket",
+)
 
 
 @dataclass
@@ -58,8 +72,15 @@ class World:
     target: np.ndarray = field(default_factory=lambda: np.zeros(3))
     dominant_plane: tuple[np.ndarray, float] | None = None  # (unit normal n, offset c): n . X = c
 
-    def render(self, T_world_cam: np.ndarray, K: np.ndarray, size: tuple[int, int],
-               rng: np.random.Generator | None = None, noise_s: float = 0.0, light: float = 1.0) -> Frame:
+    def render(
+        self,
+        T_world_cam: np.ndarray,
+        K: np.ndarray,
+        size: tuple[int, int],
+        rng: np.random.Generator | None = None,
+        noise_s: float = 0.0,
+        light: float = 1.0,
+    ) -> Frame:
         """Render the view of a camera at ``T_world_cam`` with intrinsics K; ``light`` scales
         brightness and ``noise_s`` adds the photometric noise of ``sim.noise`` at that magnitude."""
         h, w = size
@@ -81,10 +102,17 @@ class World:
             rows, cols = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
             if not len(rows):
                 continue
-            box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]  # sample the texture only where the surface shows
+            box = np.s_[
+                rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1
+            ]  # sample the texture only where the surface shows
             th, tw = surface.texture.shape
-            sampled = cv2.remap(surface.texture, (u[box] * (tw - 1)).astype(np.float32),
-                                (v[box] * (th - 1)).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            sampled = cv2.remap(
+                surface.texture,
+                (u[box] * (tw - 1)).astype(np.float32),
+                (v[box] * (th - 1)).astype(np.float32),
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REFLECT,
+            )
             shows = mask[box]
             image[box][shows], depth[mask] = sampled[shows], t[mask]
         image = np.clip(image * light, 0, 255).astype(np.uint8)
@@ -93,12 +121,16 @@ class World:
         ids, pixels = self.visible_landmarks(T_cam_world, K, depth)
         return Frame(image, depth, ids, pixels)
 
-    def visible_landmarks(self, T_cam_world: np.ndarray, K: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def visible_landmarks(
+        self, T_cam_world: np.ndarray, K: np.ndarray, depth: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Ids and pixels of landmarks inside the image and not occluded (z-buffer test)."""
-        h, w = depth.shape
         pixels, z = project(transform(T_cam_world, self.landmarks), K)
-        ok = (z > 1e-3) & np.all(np.isfinite(pixels), 1)
-        ok &= (pixels[:, 0] >= 0) & (pixels[:, 0] <= w - 1) & (pixels[:, 1] >= 0) & (pixels[:, 1] <= h - 1)
+        ok = (
+            (z > 1e-3)
+            & np.all(np.isfinite(pixels), 1)
+            & in_image(np.nan_to_num(pixels, nan=-1.0), depth.shape, margin=0.5)
+        )
         ids = np.nonzero(ok)[0]
         cols, rows = np.rint(pixels[ids]).astype(int).T
         unoccluded = z[ids] <= depth[rows, cols] * 1.01 + 1e-3
@@ -158,16 +190,22 @@ def make(name: str, seed: int = 0, landmark_density: float = 150.0) -> World:
     rng = np.random.default_rng(seed)
     if name == "plane":
         surfaces = [_rectangle((0, 0, 0), (6, 0, 0), (0, 0, -4.5), rng)]
-        return World(name, surfaces, _landmarks(surfaces, rng, landmark_density), np.zeros(3),
-                     (np.array([0.0, 1.0, 0.0]), 0.0))
+        return World(
+            name, surfaces, _landmarks(surfaces, rng, landmark_density), np.zeros(3), (np.array([0.0, 1.0, 0.0]), 0.0)
+        )
     surfaces = [
-        _rectangle((0, 1.5, 0.3), (6, 0, 0), (0, 0, -3.0), rng),          # back wall
-        _rectangle((-3, -0.5, 0.3), (0, -4, 0), (0, 0, -3.0), rng),       # left wall
-        _rectangle((3, -0.5, 0.3), (0, 4, 0), (0, 0, -3.0), rng),         # right wall
-        _rectangle((0, -0.5, -1.2), (6, 0, 0), (0, 4, 0), rng),           # floor
+        _rectangle((0, 1.5, 0.3), (6, 0, 0), (0, 0, -3.0), rng),  # back wall
+        _rectangle((-3, -0.5, 0.3), (0, -4, 0), (0, 0, -3.0), rng),  # left wall
+        _rectangle((3, -0.5, 0.3), (0, 4, 0), (0, 0, -3.0), rng),  # right wall
+        _rectangle((0, -0.5, -1.2), (6, 0, 0), (0, 4, 0), rng),  # floor
     ]
     for _ in range(3):
         size = rng.uniform(0.4, 0.9, 3)
         surfaces += _box((rng.uniform(-1.5, 1.5), rng.uniform(-0.2, 1.0), -1.2 + size[2] / 2), size, rng)
-    return World(name, surfaces, _landmarks(surfaces, rng, landmark_density), np.array([0.0, 0.5, -0.3]),
-                 (np.array([0.0, 1.0, 0.0]), 1.5))
+    return World(
+        name,
+        surfaces,
+        _landmarks(surfaces, rng, landmark_density),
+        np.array([0.0, 0.5, -0.3]),
+        (np.array([0.0, 1.0, 0.0]), 1.5),
+    )

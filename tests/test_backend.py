@@ -1,13 +1,21 @@
 import numpy as np
 import pytest
 
-from backend import drift, relpose
-from backend.graph import PoseGraph
-from backend.odometry import Odometry, OdometryConfig
-from backend.run import make_tracker, matrix_lines, pipeline_matrix, run_frames, simulate, simulated_frames
-from frontend.tracking import OracleTracker, Truth
-from sim.camera import intrinsics, invert, pose, project, transform
-from sim.scenario import Scenario, ScenarioConfig
+from deepslam.backend import drift, relpose
+from deepslam.backend.evaluation.runs import (
+    make_tracker,
+    matrix_lines,
+    pipeline_matrix,
+    run_frames,
+    simulate,
+    simulated_frames,
+)
+from deepslam.backend.graph import PoseGraph
+from deepslam.backend.odometry import Odometry, OdometryConfig
+from deepslam.frontend.tracking import OracleTracker, Truth
+from deepslam.geometry import path_length
+from deepslam.sim.camera import intrinsics, invert, pose, project, transform
+from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 K = intrinsics((120, 160))
 T_TRUE = pose(np.array([0.02, -0.04, 0.03]), np.array([0.3, 0.05, 0.1]))  # camera 2 in camera 1
@@ -28,8 +36,10 @@ def _errors(T, T_true):
     return angle, np.degrees(np.arccos(np.clip(t @ t_true, -1, 1)))
 
 
-@pytest.mark.parametrize("method, planar", [("homography", True), ("essential", False), ("auto", True),
-                                            ("pycolmap", True), ("pycolmap", False)])
+@pytest.mark.parametrize(
+    "method, planar",
+    [("homography", True), ("essential", False), ("auto", True), ("pycolmap", True), ("pycolmap", False)],
+)
 def test_relative_pose_recovers_known_motion(rng, method, planar):
     p1, p2 = _views(rng, planar)
     result = relpose.estimate(p1, p2, K, method)
@@ -58,7 +68,11 @@ def test_degenerate_cases_do_not_crash(rng):
     rotation_only = pose(np.array([0.0, 0.05, 0.0]), np.zeros(3))
     q1, q2 = _views(rng, True, rotation_only, noise=0.0)
     result = relpose.estimate(q1, q2, K, "homography")
-    assert result.rotation_only and _errors(result.T_c1_c2, rotation_only)[0] < 0.1 if result.T_c1_c2[:3, 3].any() else True
+    assert (
+        result.rotation_only and _errors(result.T_c1_c2, rotation_only)[0] < 0.1
+        if result.T_c1_c2[:3, 3].any()
+        else True
+    )
     with pytest.raises(ValueError, match="method"):
         relpose.estimate(p1, p2, K, "magic")
     with pytest.raises(ValueError, match="same length"):
@@ -100,7 +114,7 @@ def test_drift_metrics(rng):
     shifted = truth.copy()
     shifted[-1, :3, 3] += [0, 0, 1.0]
     summary = drift.summary(shifted, truth)
-    assert summary["final_drift_pct"] == pytest.approx(100 / drift.path_length(truth))
+    assert summary["final_drift_pct"] == pytest.approx(100 / path_length(truth))
     with pytest.raises(ValueError):
         drift.summary(truth[:1], truth[:1])
 
@@ -116,7 +130,9 @@ def test_planar_world_with_oracle_recovers_the_trajectory():
 def test_plane_scale_needs_no_ground_truth_steps():
     scenario = Scenario(ScenarioConfig(world="plane", frames=20))
     config = OdometryConfig(scale="plane", plane_distance=scenario.plane_distance())
-    estimate, truth = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=0.0), config), progress=False)
+    estimate, truth = run_frames(
+        simulated_frames(scenario), Odometry(OracleTracker(noise_px=0.0), config), progress=False
+    )
     assert drift.ate_rmse(estimate, truth) < 1e-3
     with pytest.raises(ValueError, match="distance"):
         Odometry(OracleTracker(), OdometryConfig(scale="plane"))
@@ -142,6 +158,10 @@ def test_make_tracker_sets_the_oracle_pixel_noise():
 
 
 def test_magic_tracks_are_carried_only_for_homography_relative_poses():
-    for method, options, carried in [("homography", {}, True), ("essential", {}, False), ("homography", {"carry": False}, False)]:
+    for method, options, carried in [
+        ("homography", {}, True),
+        ("essential", {}, False),
+        ("homography", {"carry": False}, False),
+    ]:
         run = simulate(ScenarioConfig(frames=3), "magic", OdometryConfig(method=method), progress=False, **options)
         assert run["odometry"].tracker.carry is carried

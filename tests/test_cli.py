@@ -6,10 +6,20 @@ from deepslam.cli import build_parser, main
 
 
 def test_every_command_explains_its_options(capsys):
-    for argv in (["--help"], ["run", "--help"], ["replay", "--help"], ["drift", "--help"], ["eval", "detector", "--help"],
-                 ["eval", "warp", "--help"], ["bench", "detector", "--help"], ["bench", "warp", "--help"],
-                 ["bench", "pipeline", "--help"], ["train", "magicpoint", "--help"], ["train", "magicwarp", "--help"],
-                 ["eval", "realimages", "--help"]):
+    for argv in (
+        ["--help"],
+        ["run", "--help"],
+        ["replay", "--help"],
+        ["drift", "--help"],
+        ["eval", "detector", "--help"],
+        ["eval", "warp", "--help"],
+        ["bench", "detector", "--help"],
+        ["bench", "warp", "--help"],
+        ["bench", "pipeline", "--help"],
+        ["train", "magicpoint", "--help"],
+        ["train", "magicwarp", "--help"],
+        ["eval", "realimages", "--help"],
+    ):
         with pytest.raises(SystemExit) as exit_info:
             main(argv)
         assert exit_info.value.code == 0
@@ -17,7 +27,9 @@ def test_every_command_explains_its_options(capsys):
 
 
 def test_contract_flags_of_run():
-    args = build_parser().parse_args(["run", "--frontend", "classical", "--frames", "7", "--seed", "3", "--out", "x.mcap"])
+    args = build_parser().parse_args(
+        ["run", "--frontend", "classical", "--frames", "7", "--seed", "3", "--out", "x.mcap"]
+    )
     assert (args.frontend, args.frames, args.seed, str(args.out)) == ("classical", 7, 3, "x.mcap")
 
 
@@ -40,24 +52,36 @@ def test_bad_input_gets_a_clear_error(tmp_path, capsys):
     assert main(["run", "--size", "100", "160", "--out", str(tmp_path / "r.mcap")]) == 2
     assert "divisible by 8" in capsys.readouterr().err
     log, folder = str(tmp_path / "r.mcap"), str(tmp_path / "eval")
-    for argv, message in [(["run", "--keyframe-parallax", "-1", "--out", log], "keyframe parallax must be positive"),
-                          (["run", "--warp-iterations", "0", "--out", log], "iterations and the budget must be at least 1"),
-                          (["eval", "pipeline", "--seeds", "0", "--out", folder], "at least one"),
-                          (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
-                          (["run", "--seed", "-1", "--out", log], "seed must be non-negative"),
-                          (["bench", "warp", "--repeats", "0"], "at least 1 repetition"),
-                          (["bench", "pipeline", "--frames", "1"], "a run needs at least 2 frames, got 1"),
-                          (["train", "magicwarp", "--batch", "0", "--out", folder], "--batch must be at least 1"),
-                          (["train", "magicpoint", "--iterations", "0", "--ema", "1", "--out", folder],
-                           "--iterations must be at least 1, got 0; --ema must lie in [0, 1)")]:
+    for argv, message in [
+        (["run", "--keyframe-parallax", "-1", "--out", log], "keyframe parallax must be positive"),
+        (["run", "--warp-iterations", "0", "--out", log], "iterations and the budget must be at least 1"),
+        (["eval", "pipeline", "--seeds", "0", "--out", folder], "at least one"),
+        (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
+        (["run", "--seed", "-1", "--out", log], "seed must be non-negative"),
+        (["bench", "warp", "--repeats", "0"], "at least 1 repetition"),
+        (["bench", "pipeline", "--frames", "1"], "a run needs at least 2 frames, got 1"),
+        (["train", "magicwarp", "--batch", "0", "--out", folder], "--batch must be at least 1"),
+        (
+            ["train", "magicpoint", "--iterations", "0", "--ema", "1", "--out", folder],
+            "--iterations must be at least 1, got 0; --ema must lie in [0, 1)",
+        ),
+    ]:
         assert main(argv) == 2
         assert message in capsys.readouterr().err
-    for argv, message in [(["train", "magicwarp", "--max-extra", "1.5", "--out", folder],
-                           "argument --max-extra: must be a number in [0, 1], got '1.5'"),
-                          (["train", "magicwarp", "--clean-a-share", "2", "--out", folder],
-                           "argument --clean-a-share: must be a number in [0, 1], got '2'"),
-                          (["train", "magicpoint", "--clean-share", "half", "--out", folder],
-                           "argument --clean-share: must be a number in [0, 1], got 'half'")]:
+    for argv, message in [
+        (
+            ["train", "magicwarp", "--max-extra", "1.5", "--out", folder],
+            "argument --max-extra: must be a number in [0, 1], got '1.5'",
+        ),
+        (
+            ["train", "magicwarp", "--clean-a-share", "2", "--out", folder],
+            "argument --clean-a-share: must be a number in [0, 1], got '2'",
+        ),
+        (
+            ["train", "magicpoint", "--clean-share", "half", "--out", folder],
+            "argument --clean-share: must be a number in [0, 1], got 'half'",
+        ),
+    ]:
         with pytest.raises(SystemExit) as exit_info:  # argparse rejects these before any work starts
             main(argv)
         assert exit_info.value.code == 2

@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from backend import analysis, drift
-from backend.odometry import OdometryConfig
-from backend.run import replay, simulate
-from logs.frames import pose_matrix, quaternion_from_matrix
-from logs.reader import LogError, read_frames, read_metadata
-from logs.schemas import TOPICS, ros2_name
-from sim.scenario import ScenarioConfig
+from deepslam.backend import drift
+from deepslam.backend.evaluation import analysis
+from deepslam.backend.evaluation.runs import replay, simulate
+from deepslam.backend.odometry import OdometryConfig
+from deepslam.logs.frames import pose_matrix, quaternion_from_matrix
+from deepslam.logs.reader import LogError, read_frames, read_metadata
+from deepslam.logs.schemas import TOPICS, ros2_name
+from deepslam.sim.scenario import ScenarioConfig
 
 
 def _as_logged(T):
@@ -27,8 +28,9 @@ def _as_logged(T):
 @pytest.fixture(scope="module")
 def oracle_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("logs") / "oracle.mcap"
-    result = simulate(ScenarioConfig(frames=25, seed=3), "oracle", OdometryConfig(), path, {"version": "test"},
-                      progress=False)
+    result = simulate(
+        ScenarioConfig(frames=25, seed=3), "oracle", OdometryConfig(), path, {"version": "test"}, progress=False
+    )
     return path, result
 
 
@@ -36,7 +38,7 @@ def test_run_reads_back_bit_for_bit(oracle_log):
     path, result = oracle_log
     frames = list(read_frames(path))
     assert len(frames) == 25
-    for frame, estimate, truth in zip(frames, result["estimate"], result["truth"]):
+    for frame, estimate, truth in zip(frames, result["estimate"], result["truth"], strict=False):
         assert np.array_equal(frame.T_estimate, _as_logged(estimate))
         assert np.array_equal(frame.T_groundtruth, _as_logged(truth))
         assert frame.image.dtype == np.uint8 and frame.image.shape == (120, 160)
@@ -63,9 +65,24 @@ def test_evo_agrees_with_deepslam_drift(oracle_log, tmp_path):
     _, truth, estimate = analysis.load_trajectories(path)
     ours = drift.ate_rmse(estimate, truth)
     zip_path = tmp_path / "ape.zip"
-    subprocess.run(["evo_ape", "mcap", str(path), "/groundtruth/pose", "/estimate/pose", "-a",
-                    "--save_results", str(zip_path), "--no_warnings"], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [
+            "evo_ape",
+            "mcap",
+            str(path),
+            "/groundtruth/pose",
+            "/estimate/pose",
+            "-a",
+            "--save_results",
+            str(zip_path),
+            "--no_warnings",
+        ],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
     import zipfile
+
     stats = json.loads(zipfile.ZipFile(zip_path).read("stats.json"))
     assert stats["rmse"] == pytest.approx(ours, rel=1e-6)
 
@@ -87,6 +104,7 @@ def test_garbage_and_foreign_files_get_clear_errors(tmp_path):
     with pytest.raises(LogError, match="no such file"):
         list(read_frames(tmp_path / "missing.mcap"))
     from mcap.writer import Writer
+
     foreign = tmp_path / "foreign.mcap"
     with open(foreign, "wb") as f:
         writer = Writer(f)
@@ -108,14 +126,17 @@ def test_truncated_file_reads_up_to_its_last_whole_chunk(oracle_log, tmp_path):
         frames = list(read_frames(cut))
     complete = list(read_frames(path))
     assert 0 < len(frames) < len(complete)
-    for got, want in zip(frames, complete):
+    for got, want in zip(frames, complete, strict=False):
         assert got.stamp_ns == want.stamp_ns and np.array_equal(got.T_estimate, want.T_estimate)
 
 
 def _run_until(out: Path, size: int) -> subprocess.Popen:
     """A real `deepslam run` subprocess, returned once its log has grown past ``size`` bytes."""
-    process = subprocess.Popen([sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400",
-                                "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     deadline = time.time() + 240
     while time.time() < deadline and (not out.exists() or out.stat().st_size < size):
         time.sleep(0.2)
@@ -145,7 +166,7 @@ def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
     replay(original, "classical", config, again, progress=False)
     first, second = list(read_frames(original)), list(read_frames(again))
     assert len(first) == len(second) == 15
-    for a, b in zip(first, second):
+    for a, b in zip(first, second, strict=False):
         assert np.array_equal(a.image, b.image)
         np.testing.assert_allclose(a.T_estimate, b.T_estimate, atol=1e-9)
     with pytest.raises(ValueError, match="oracle"):

@@ -2,22 +2,39 @@ import numpy as np
 import pytest
 import torch
 
-from frontend.classical import ClassicalDetector
-from frontend.evaluate_detector import _jittered
-from frontend import MagicWarp
-from frontend.evaluate_warp import GRIDS, PAPER, short_of_paper, table_lines, validation_figures, validation_set
-from frontend.magicwarp import MagicWarpConfig, MagicWarpNet
-from frontend.metrics import (average_precision, localization_error, match_detections, merge, repeatability,
-                              repeatability_at_n)
-from sim.world import photo
+from deepslam.frontend import MagicWarp
+from deepslam.frontend.classical import ClassicalDetector
+from deepslam.frontend.evaluation.detector import _jittered
+from deepslam.frontend.evaluation.metrics import (
+    average_precision,
+    localization_error,
+    match_detections,
+    merge,
+    repeatability,
+    repeatability_at_n,
+)
+from deepslam.frontend.evaluation.warp import (
+    GRIDS,
+    PAPER,
+    short_of_paper,
+    table_lines,
+    validation_figures,
+    validation_set,
+)
+from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
+from deepslam.sim.world import photo
 
 
 def test_average_precision_by_hand():
     corners = np.array([[10.0, 10.0], [50.0, 50.0]])
-    detections = np.array([[11.0, 10.0, 0.9],    # true, 1 px
-                           [30.0, 30.0, 0.8],    # false
-                           [50.0, 53.0, 0.7],    # true, 3 px
-                           [10.0, 12.0, 0.6]])   # near a corner already matched: false
+    detections = np.array(
+        [
+            [11.0, 10.0, 0.9],  # true, 1 px
+            [30.0, 30.0, 0.8],  # false
+            [50.0, 53.0, 0.7],  # true, 3 px
+            [10.0, 12.0, 0.6],
+        ]
+    )  # near a corner already matched: false
     result = match_detections(detections, corners, eps=4)
     assert result.correct.tolist() == [True, False, True, False]
     # precision 1 at recall 0.5, 2/3 at recall 1
@@ -52,9 +69,15 @@ def test_repeatability_at_n_takes_the_best_count():
 
 
 def test_point_extraction_nms_border_top_k_and_subpixel():
-    from frontend.points import extract_points
+    from deepslam.frontend.points import extract_points
+
     yy, xx = np.mgrid[0:40, 0:48].astype(np.float32)
-    peaks = [(20.3, 12.6, 0.9), (23.0, 13.0, 0.5), (40.0, 30.0, 0.7), (1.0, 1.0, 1.0)]  # 2nd: within NMS of 1st; 4th: border
+    peaks = [
+        (20.3, 12.6, 0.9),
+        (23.0, 13.0, 0.5),
+        (40.0, 30.0, 0.7),
+        (1.0, 1.0, 1.0),
+    ]  # 2nd: within NMS of 1st; 4th: border
     scores = sum(s * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2) for x, y, s in peaks).astype(np.float32)
     points = extract_points(scores, 0.1, nms_radius=4, border=4)
     assert points[:, :2].tolist() == [[20, 13], [40, 30]]  # sorted by score, neighbour and border peaks gone
@@ -72,20 +95,31 @@ def test_jittered_real_image_frames_come_with_their_true_motion():
     frames, homographies = _jittered([image] * 4, np.random.default_rng(0), jitter_px=3.0)
     assert len(homographies) == 3 and not np.allclose(homographies[0], np.eye(3))
     points = [ClassicalDetector("shi").detect(f) for f in frames]
-    true_motion, _ = repeatability_at_n(list(zip(points, points[1:], homographies)), image.shape)
-    no_motion, _ = repeatability_at_n([(a, b, np.eye(3)) for a, b in zip(points, points[1:])], image.shape)
+    true_motion, _ = repeatability_at_n(list(zip(points, points[1:], homographies, strict=False)), image.shape)
+    no_motion, _ = repeatability_at_n(
+        [(a, b, np.eye(3)) for a, b in zip(points, points[1:], strict=False)], image.shape
+    )
     assert true_motion > 0.8 > no_motion + 0.2
 
 
 def test_breakdown_cells_are_checked_against_the_papers_magicwarp_column():
     def table(shift):
-        return {density: {str(extra): {"magicwarp": {m: v + shift for m, v in zip(GRIDS, mw)}}
-                          for (d, extra), (_, mw) in PAPER.items() if d == density} for density in ("low", "medium", "high")}
+        return {
+            density: {
+                str(extra): {"magicwarp": {m: v + shift for m, v in zip(GRIDS, mw, strict=False)}}
+                for (d, extra), (_, mw) in PAPER.items()
+                if d == density
+            }
+            for density in ("low", "medium", "high")
+        }
+
     assert short_of_paper({"breakdown": table(0.0)}, "magicwarp") == []
     result = {"breakdown": table(0.0)}
     result["breakdown"]["medium"]["0.2"]["magicwarp"]["random_h"] = 17.71
     assert short_of_paper(result, "magicwarp") == ["medium 20% random_h 17.71<24.84"]
-    assert "35 of 36 cells at or above the paper; short: medium 20% random_h 17.71<24.84" in "\n".join(table_lines(result))
+    assert "35 of 36 cells at or above the paper; short: medium 20% random_h 17.71<24.84" in "\n".join(
+        table_lines(result)
+    )
 
 
 def test_warp_validation_moves_pairs_by_the_papers_breakdown_magnitudes():
@@ -93,10 +127,15 @@ def test_warp_validation_moves_pairs_by_the_papers_breakdown_magnitudes():
     assert len(validation) == 36 * 2 and [motion for motion, _ in validation[:8:2]] == list(GRIDS)
     _, first = validation[0]  # low density, no extra points, translation: the paper's 24.00 px
     partner = first.true_index >= 0
-    np.testing.assert_allclose(first.points_b[first.true_index[partner]] - first.points_a[partner], [[24.0, 0.0]] * partner.sum())
+    np.testing.assert_allclose(
+        first.points_b[first.true_index[partner]] - first.points_a[partner], [[24.0, 0.0]] * partner.sum()
+    )
     identity = MagicWarpNet(MagicWarpConfig(widths=(4, 4), hidden=8))
     torch.nn.init.zeros_(identity.head[-1].weight)  # outputs its bias: H = I, the nearest-neighbour baseline
     identity.eval()
-    nearest, shipped = validation_figures(identity, validation), validation_figures(MagicWarp.pretrained().net, validation)
+    nearest, shipped = (
+        validation_figures(identity, validation),
+        validation_figures(MagicWarp.pretrained().net, validation),
+    )
     assert 0 <= nearest["pass@paper"] <= 100 and set(shipped) == set(nearest)
     assert shipped["score"] > nearest["score"] + 20  # the paper's MagicWarp magnitudes are about 3x NN's breakdown

@@ -3,13 +3,14 @@ import numpy as np
 import pytest
 import torch
 
-from frontend import MagicPoint, MagicWarp, match
-from frontend.cells import points_to_cells
-from frontend.classical import ClassicalDetector
-from frontend.magicpoint import VARIANTS, MagicPointNet
-from frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer, warp_loss
-from frontend.nets import fold_batchnorm
-from sim import shapes
+from deepslam.frontend import MagicPoint, MagicWarp, match
+from deepslam.frontend.cells import points_to_cells
+from deepslam.frontend.classical import ClassicalDetector
+from deepslam.frontend.magicpoint import VARIANTS, MagicPointNet
+from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer
+from deepslam.frontend.nets import fold_batchnorm
+from deepslam.frontend.training.magicwarp import warp_loss
+from deepslam.sim import shapes
 
 
 def _randomise_batchnorm(model):
@@ -22,8 +23,9 @@ def _randomise_batchnorm(model):
     return model.eval()
 
 
-@pytest.mark.parametrize("net, shape", [(MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)),
-                                        (MagicWarpNet(), (2, 130, 15, 20))])
+@pytest.mark.parametrize(
+    "net, shape", [(MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)), (MagicWarpNet(), (2, 130, 15, 20))]
+)
 def test_batchnorm_folding_keeps_outputs(net, shape):
     torch.manual_seed(0)
     net = _randomise_batchnorm(net)
@@ -59,7 +61,10 @@ def test_grid_shifts_make_the_heatmap_move_with_the_image(rng):
     image, _ = shapes.render("checkerboards", rng)
     moved = np.roll(image, 4, axis=1)  # 4 px to the right; compare away from the wrapped border
     single, shifted = MagicPoint.pretrained("S"), MagicPoint.pretrained("S", grid_shifts=4)
-    gap = lambda detector: np.abs(detector.heatmap(moved)[:, 44:-40] - detector.heatmap(image)[:, 40:-44]).max()
+
+    def gap(detector):
+        return np.abs(detector.heatmap(moved)[:, 44:-40] - detector.heatmap(image)[:, 40:-44]).max()
+
     assert gap(shifted) < 1e-4 < 0.05 < gap(single)  # exact in the interior with shifts; not without
     with pytest.raises(ValueError, match="grid_shifts"):
         MagicPoint.pretrained("S", grid_shifts=3)
@@ -179,7 +184,9 @@ def test_match_is_mutually_exclusive_nearest_neighbour():
 
 
 def test_refine_recovers_a_homography_from_a_rough_guess(rng):
-    from frontend.magicwarp import refine, warp_points
+    from deepslam.frontend.magicwarp import refine
+    from deepslam.geometry import warp_points
+
     true_H = np.array([[1.02, 0.03, 9.0], [-0.02, 0.99, -4.0], [1e-4, 0, 1]])
     a = rng.uniform([0, 0], [159, 119], (60, 2))
     b = np.vstack([warp_points(a, true_H), rng.uniform([0, 0], [159, 119], (12, 2))])  # 20% spurious points
@@ -191,8 +198,8 @@ def test_refine_recovers_a_homography_from_a_rough_guess(rng):
 
 
 def test_motion_errors_measure_what_the_warp_recovers():
-    from frontend.evaluate_warp import ERROR_MAGNITUDES, motion_errors
-    from sim.homography import normalize
+    from deepslam.frontend.evaluation.warp import ERROR_MAGNITUDES, motion_errors
+    from deepslam.sim.homography import normalize
 
     class Identity:  # recovers nothing: its corner error is the whole corner shift
         def estimate_batch(self, pairs, size):
@@ -211,7 +218,9 @@ def test_motion_errors_measure_what_the_warp_recovers():
     for motion, rows in nothing.items():
         for row in rows:  # the same shift in every run, except random_h's random corner directions
             assert row["corner_shift_px"] > 0
-            assert np.isclose(row["corner_error_px"], row["corner_shift_px"], rtol=0.5 if motion == "random_h" else 1e-9)
+            assert np.isclose(
+                row["corner_error_px"], row["corner_shift_px"], rtol=0.5 if motion == "random_h" else 1e-9
+            )
     assert nothing["translation"][1]["corner_shift_px"] == pytest.approx(10.0)
     small = motion_errors(Fitted(), runs=3)["translation"][0]  # 5 px: nearest neighbours are mostly the truth
     assert small["corner_error_px"] < 0.5 < small["corner_shift_px"]
@@ -230,8 +239,9 @@ class _ScriptedDetector:
 
 @pytest.mark.parametrize("carry", [True, False])
 def test_magic_tracker_carries_a_missed_point_within_its_budget_and_picks_it_up_again(carry):
-    from frontend.tracking import MagicTracker
-    from sim.pointsets import detector_points
+    from deepslam.frontend.tracking import MagicTracker
+    from deepslam.sim.pointsets import detector_points
+
     points = detector_points(np.random.default_rng(0), 60, (120, 160))
     points = points[(points > 8).all(1) & (points < [150, 110]).all(1)]
     shift = np.array([2.0, 1.0])
@@ -254,8 +264,8 @@ def test_magic_tracker_carries_a_missed_point_within_its_budget_and_picks_it_up_
 
 
 def test_magic_tracker_keeps_its_tracks_when_magicwarp_is_far_off():
-    from frontend.tracking import MagicTracker
-    from sim.pointsets import detector_points
+    from deepslam.frontend.tracking import MagicTracker
+    from deepslam.sim.pointsets import detector_points
 
     class FarOff:  # every estimate 20 px away from the truth: too far for snapping to mend
         def estimate(self, points_a, points_b, image_size, iterations=1):

@@ -1,11 +1,12 @@
 import numpy as np
 import pytest
 
-from frontend.cells import points_to_cells
-from sim import noise, shapes
-from sim.homography import HomographyConfig, sample_homography, warp_image_and_points, warp_points
-from sim.pointclouds import GEOMETRIES, PairConfig, sample_pair
-from sim.pointsets import detector_points, make_pair, motion_homography, random_direction
+from deepslam.frontend.cells import points_to_cells
+from deepslam.geometry import warp_points
+from deepslam.sim import noise, shapes
+from deepslam.sim.homography import HomographyConfig, sample_homography, warp_image_and_points
+from deepslam.sim.pointclouds import GEOMETRIES, PairConfig, sample_pair
+from deepslam.sim.pointsets import detector_points, make_pair, motion_homography, random_direction
 
 
 def test_ten_categories_render_with_corners_inside_the_image(rng):
@@ -26,16 +27,16 @@ def test_positive_categories_have_corners_on_edges(rng):
         assert len(corners) >= 1  # corners that fall outside the image are not labels
         for x, y in corners:
             x0, y0 = int(round(x)), int(round(y))
-            patch = image[max(0, y0 - 2):y0 + 3, max(0, x0 - 2):x0 + 3].astype(int)
+            patch = image[max(0, y0 - 2) : y0 + 3, max(0, x0 - 2) : x0 + 3].astype(int)
             assert patch.max() - patch.min() > 15
 
 
 def test_same_seed_same_bytes():
     a = shapes.evaluation_set(3, seed=7)
     b = shapes.evaluation_set(3, seed=7)
-    assert all(x[1].tobytes() == y[1].tobytes() and np.array_equal(x[2], y[2]) for x, y in zip(a, b))
+    assert all(x[1].tobytes() == y[1].tobytes() and np.array_equal(x[2], y[2]) for x, y in zip(a, b, strict=False))
     c = shapes.evaluation_set(3, seed=8)
-    assert any(x[1].tobytes() != y[1].tobytes() for x, y in zip(a, c))
+    assert any(x[1].tobytes() != y[1].tobytes() for x, y in zip(a, c, strict=False))
 
 
 def test_render_rejects_bad_input(rng):
@@ -109,10 +110,13 @@ def test_point_cloud_pairs_are_consistent(rng):
 def test_spurious_points_grow_with_max_extra():
     """The same seeds draw the same pairs: spurious points are drawn last, so the true matches stay and
     image B only gains points."""
+
     def counts(max_extra):
-        pairs = [sample_pair(np.random.default_rng([3, i]), PairConfig(max_extra=max_extra), "homography")
-                 for i in range(20)]
+        pairs = [
+            sample_pair(np.random.default_rng([3, i]), PairConfig(max_extra=max_extra), "homography") for i in range(20)
+        ]
         return np.array([len(p.points_b) for p in pairs]), np.array([len(p.true_b) for p in pairs])
+
     (none, true_none), (many, true_many) = counts(0.0), counts(1.0)
     assert np.array_equal(true_none, true_many)
     assert np.all(many >= none) and many.sum() > 1.3 * none.sum()
@@ -121,10 +125,12 @@ def test_spurious_points_grow_with_max_extra():
 def test_clean_a_pairs_are_drawn_as_the_breakdown_evaluation_draws_them():
     """With clean_a_share=1, image A keeps every point and only B gets spurious points; they are drawn
     last, so the same seeds give the same A points and true matches at any max_extra."""
+
     def pairs(**options):
         return [sample_pair(np.random.default_rng([5, i]), PairConfig(**options), "homography") for i in range(20)]
+
     clean, noisy, default = pairs(clean_a_share=1.0, max_extra=0.0), pairs(clean_a_share=1.0, max_extra=1.0), pairs()
-    for c, n in zip(clean, noisy):
+    for c, n in zip(clean, noisy, strict=False):
         np.testing.assert_array_equal(c.points_a, n.points_a)
         np.testing.assert_array_equal(c.true_b, n.true_b)
         assert sorted(map(tuple, c.points_b)) == sorted(map(tuple, c.true_b))  # no dropout in B
@@ -137,10 +143,10 @@ def test_clean_a_pairs_are_drawn_as_the_breakdown_evaluation_draws_them():
 @pytest.mark.parametrize("geometry", ["plane", "homography"])
 def test_planar_pairs_follow_a_homography(rng, geometry):
     import cv2
+
     pair = sample_pair(rng, PairConfig(), geometry)
     H, _ = cv2.findHomography(pair.true_a, pair.true_b, 0)
     np.testing.assert_allclose(warp_points(pair.true_a, H), pair.true_b, atol=1e-3)
-
 
 
 def test_breakdown_motions_and_pairs(rng):
@@ -179,14 +185,16 @@ def test_detector_points_fill_distinct_cells_as_the_cell_encoding_sees_them(rng)
     points = detector_points(rng, 300, size)  # every cell of a 120x160 image
     cells = points_to_cells(points, size)
     assert points.shape == (300, 2) and not cells[64].any() and cells[:64].max() == 1.0
-    np.testing.assert_array_equal(detector_points(np.random.default_rng(5), 40, size),
-                                  detector_points(np.random.default_rng(5), 40, size))
+    np.testing.assert_array_equal(
+        detector_points(np.random.default_rng(5), 40, size), detector_points(np.random.default_rng(5), 40, size)
+    )
     with pytest.raises(ValueError, match="301 points do not fit"):
         detector_points(rng, 301, size)
 
 
 def test_look_at_keeps_world_up_at_the_top_of_the_image():
-    from sim.camera import intrinsics, invert, look_at, project, transform
+    from deepslam.sim.camera import intrinsics, invert, look_at, project, transform
+
     T_world_cam = look_at(np.array([0.0, -2.0, 0.5]), np.zeros(3))
     K = intrinsics((120, 160))
     (above, right), _ = project(transform(invert(T_world_cam), np.array([[0.0, 0, 1], [1.0, 0, 0]])), K)
@@ -194,13 +202,18 @@ def test_look_at_keeps_world_up_at_the_top_of_the_image():
 
 
 def test_world_render_samples_textures_by_ray_casting_with_occlusion():
-    from sim.world import Surface, World
+    from deepslam.sim.world import Surface, World
+
     K = np.array([[80.0, 0, 79.5], [0, 80.0, 59.5], [0, 0, 1]])
     cols, rows = np.meshgrid(np.arange(100), np.arange(51))
     ramp = (cols + rows).astype(np.uint8)  # linear in the texel position: bilinear sampling is exact
     far = Surface(np.array([-1.0, -0.5, 2.0]), np.array([2.0, 0, 0]), np.array([0, 1.0, 0]), ramp)  # z = 2
-    near = Surface(np.array([0.0, -0.1, 1.0]), np.array([0.2, 0, 0]), np.array([0, 0.2, 0]), np.full((8, 8), 250, np.uint8))
-    landmarks = np.array([[-0.5, 0.0, 2.0], [0.1, 0.0, 2.0], [3.0, 0.0, 2.0]])  # seen, behind the near square, out of view
+    near = Surface(
+        np.array([0.0, -0.1, 1.0]), np.array([0.2, 0, 0]), np.array([0, 0.2, 0]), np.full((8, 8), 250, np.uint8)
+    )
+    landmarks = np.array(
+        [[-0.5, 0.0, 2.0], [0.1, 0.0, 2.0], [3.0, 0.0, 2.0]]
+    )  # seen, behind the near square, out of view
     world = World("test", [far, near], landmarks)
     frame = world.render(np.eye(4), K, (120, 160))  # the camera at the origin looking along +z
     x, y = np.meshgrid(np.arange(160.0), np.arange(120.0))

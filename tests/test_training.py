@@ -1,13 +1,17 @@
 """Smoke runs of a few iterations: the training loops run, checkpoint and resume."""
+
 import json
 
 import numpy as np
 import pytest
 import torch
 
-from frontend import MagicPoint, train_magicpoint, train_magicwarp
-from frontend.magicwarp import MagicWarpConfig, MagicWarpNet
-from frontend.training import LoopConfig, export_weights, load_weights, train
+from deepslam.frontend import MagicPoint
+from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
+from deepslam.frontend.training import magicpoint as train_magicpoint
+from deepslam.frontend.training import magicwarp as train_magicwarp
+from deepslam.frontend.training.loop import LoopConfig, export_weights, train
+from deepslam.frontend.training.surgery import load_weights
 
 
 def test_magicpoint_training_runs_and_resumes(tmp_path):
@@ -37,12 +41,19 @@ def test_magicwarp_training_runs_and_resumes(tmp_path):
     assert state["step"] == 2 and "rng" in state
 
 
-@pytest.mark.parametrize("trainer, options, message", [
-    (train_magicwarp, {"loss_weighting": "points"}, "--loss-weighting"),
-    (train_magicwarp, {"geometry_weights": (0, 0, 0, 0, 0)}, "geometry_weights"),
-    (train_magicwarp, {"max_extra": -0.1}, "max_extra"), (train_magicwarp, {"clean_a_share": 1.5}, "clean_a_share"),
-    (train_magicwarp, {"cauchy": -0.05}, "--cauchy"), (train_magicwarp, {"lr": 0}, "--lr"),
-    (train_magicpoint, {"clean_share": 1.5}, "--clean-share"), (train_magicpoint, {"variant": "M"}, "--variant")])
+@pytest.mark.parametrize(
+    "trainer, options, message",
+    [
+        (train_magicwarp, {"loss_weighting": "points"}, "--loss-weighting"),
+        (train_magicwarp, {"geometry_weights": (0, 0, 0, 0, 0)}, "geometry_weights"),
+        (train_magicwarp, {"max_extra": -0.1}, "max_extra"),
+        (train_magicwarp, {"clean_a_share": 1.5}, "clean_a_share"),
+        (train_magicwarp, {"cauchy": -0.05}, "--cauchy"),
+        (train_magicwarp, {"lr": 0}, "--lr"),
+        (train_magicpoint, {"clean_share": 1.5}, "--clean-share"),
+        (train_magicpoint, {"variant": "M"}, "--variant"),
+    ],
+)
 def test_training_options_fail_before_any_work(trainer, options, message):
     with pytest.raises(ValueError, match=message):
         trainer.TrainConfig(**options)
@@ -84,8 +95,15 @@ def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
     name = "encoder.0.0.weight"
 
     def tuned(iterations):
-        config = train_magicpoint.TrainConfig(iterations=iterations, batch=4, validate_every=1, validation_per_category=1,
-                                              ema=0.25, init=str(tmp_path / "base" / "last.pt"), seed=1)
+        config = train_magicpoint.TrainConfig(
+            iterations=iterations,
+            batch=4,
+            validate_every=1,
+            validation_per_category=1,
+            ema=0.25,
+            init=str(tmp_path / "base" / "last.pt"),
+            seed=1,
+        )
         train_magicpoint.run(tmp_path / "tuned", config)
         return torch.load(tmp_path / "tuned" / "last.pt", weights_only=False)
 
@@ -102,7 +120,9 @@ def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
 
 def test_init_widens_a_narrower_network_without_changing_what_it_computes(tmp_path):
     narrow, wide = MagicWarpConfig(widths=(8, 8, 16, 16), hidden=16), MagicWarpConfig(widths=(8, 16, 16, 32), hidden=32)
-    train_magicwarp.run(tmp_path / "narrow", train_magicwarp.TrainConfig(iterations=1, batch=4, validate_every=1), narrow)
+    train_magicwarp.run(
+        tmp_path / "narrow", train_magicwarp.TrainConfig(iterations=1, batch=4, validate_every=1), narrow
+    )
     weights = tmp_path / "narrow" / "last.pt"
     cells = (torch.rand(3, 130, 15, 20) < 0.1).float()
     start, widened = MagicWarpNet(narrow).eval(), MagicWarpNet(wide).eval()
@@ -120,7 +140,9 @@ def test_init_widens_a_narrower_network_without_changing_what_it_computes(tmp_pa
 
 def test_init_deepens_a_network_with_identity_blocks(tmp_path):
     shallow = MagicWarpConfig(widths=(8, 8, 16, 16), hidden=16)
-    train_magicwarp.run(tmp_path / "shallow", train_magicwarp.TrainConfig(iterations=3, batch=4, validate_every=3), shallow)
+    train_magicwarp.run(
+        tmp_path / "shallow", train_magicwarp.TrainConfig(iterations=3, batch=4, validate_every=3), shallow
+    )
     state = torch.load(tmp_path / "shallow" / "last.pt", weights_only=False)
     del state["config"]["blocks"]  # as saved before the field existed: it takes its default
     torch.save(state, tmp_path / "older.pt")
@@ -131,8 +153,10 @@ def test_init_deepens_a_network_with_identity_blocks(tmp_path):
     cells = (torch.rand(3, 130, 15, 20) < 0.1).float()
     start = MagicWarpNet(shallow).eval()
     load_weights(start, tmp_path / "older.pt")
-    for deeper in (MagicWarpConfig(widths=(8, 8, 8, 16, 16, 16), hidden=16, blocks=3),
-                   MagicWarpConfig(widths=(8, 8, 8, 8, 16, 16, 24, 24), hidden=32, blocks=4)):  # deeper and wider
+    for deeper in (
+        MagicWarpConfig(widths=(8, 8, 8, 16, 16, 16), hidden=16, blocks=3),
+        MagicWarpConfig(widths=(8, 8, 8, 8, 16, 16, 24, 24), hidden=32, blocks=4),
+    ):  # deeper and wider
         grown = MagicWarpNet(deeper).eval()
         load_weights(grown, tmp_path / "older.pt")
         assert torch.allclose(grown(cells), start(cells), atol=1e-5)

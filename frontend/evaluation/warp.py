@@ -1,13 +1,15 @@
 """MagicWarp evaluation: match repeatability and the paper's 90% breakdown-point table."""
+
 from __future__ import annotations
 
 import textwrap
 
 import numpy as np
 
-from frontend.magicwarp import MagicWarp, MagicWarpNet, refine, warp_points
-from sim.homography import image_corners
-from sim.pointsets import MOTIONS, PointSetPair, make_pair, motion_homography, random_direction
+from deepslam.frontend.magicwarp import MagicWarp, MagicWarpNet, refine
+from deepslam.geometry import warp_points
+from deepslam.sim.homography import image_corners
+from deepslam.sim.pointsets import MOTIONS, PointSetPair, make_pair, motion_homography, random_direction
 
 SIZE = (120, 160)
 
@@ -27,8 +29,12 @@ def match_repeatability(H: np.ndarray, pair: PointSetPair) -> float:
 
 DENSITIES = {"low": (5, 25), "medium": (25, 50), "high": (100, 200)}
 EXTRAS = (0.0, 0.2, 0.4)
-GRIDS = {"translation": np.arange(0, 61, 1.0), "rotation": np.arange(0, 61, 1.0),
-         "scale": np.round(np.arange(1.0, 1.601, 0.01), 2), "random_h": np.arange(0, 61, 1.0)}
+GRIDS = {
+    "translation": np.arange(0, 61, 1.0),
+    "rotation": np.arange(0, 61, 1.0),
+    "scale": np.round(np.arange(1.0, 1.601, 0.01), 2),
+    "random_h": np.arange(0, 61, 1.0),
+}
 UNITS = {"translation": "px", "rotation": "deg", "scale": "x", "random_h": "px"}
 PAPER = {  # (density, extra) -> NN (trans, rot, scale, randH), MagicWarp (trans, rot, scale, randH)
     ("low", 0.0): ((8.41, 9.42, 1.20, 13.89), (24.00, 21.45, 1.32, 32.83)),
@@ -50,7 +56,7 @@ def validation_set(seed: int, runs: int = 24) -> list[tuple[str, PointSetPair]]:
     validation = []
     for (density, extra), (_, paper) in PAPER.items():
         fewest, most = DENSITIES[density]
-        for motion, magnitude in zip(MOTIONS, paper):
+        for motion, magnitude in zip(MOTIONS, paper, strict=False):
             for _ in range(runs):
                 H = motion_homography(motion, magnitude, SIZE, random_direction(rng))
                 validation.append((motion, make_pair(rng, H, int(rng.integers(fewest, most + 1)), extra, SIZE)))
@@ -64,7 +70,7 @@ def validation_figures(net: MagicWarpNet, validation: list[tuple[str, PointSetPa
     breakdown table's shortfall from the paper does (frontend/weights/magicwarp.md, session 15)."""
     warp = MagicWarp(net)
     H = warp.estimate_batch([(p.points_a, p.points_b) for _, p in validation], SIZE)
-    reps = np.array([match_repeatability(h, pair) for h, (_, pair) in zip(H, validation)])
+    reps = np.array([match_repeatability(h, pair) for h, (_, pair) in zip(H, validation, strict=False)])
     motions = np.array([motion for motion, _ in validation])
     figures = {f"rep@paper:{m}": float(reps[motions == m].mean()) for m in MOTIONS if (motions == m).any()}
     return figures | {"pass@paper": float(100 * np.mean(reps >= 90.0)), "score": float(reps.mean())}
@@ -105,7 +111,9 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
     """
     from tqdm import tqdm
 
-    methods = ["nearest_neighbour", "ransac"] + (["magicwarp", "magicwarp_x2", "magicwarp_refined", "magicwarp_clean_b"] if warp else [])
+    methods = ["nearest_neighbour", "ransac"] + (
+        ["magicwarp", "magicwarp_x2", "magicwarp_refined", "magicwarp_clean_b"] if warp else []
+    )
     table: dict = {}
     curves: dict = {}
     jobs = [(d, e, m) for d in DENSITIES for e in EXTRAS for m in GRIDS]
@@ -116,32 +124,52 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
             rng = np.random.default_rng([seed, run])
             count = int(rng.integers(DENSITIES[density][0], DENSITIES[density][1] + 1))
             direction = random_direction(rng)
-            pairs = [make_pair(np.random.default_rng([seed, run, 1]),
-                               motion_homography(motion, m, SIZE, direction), count, extra, SIZE) for m in grid]
+            pairs = [
+                make_pair(
+                    np.random.default_rng([seed, run, 1]),
+                    motion_homography(motion, m, SIZE, direction),
+                    count,
+                    extra,
+                    SIZE,
+                )
+                for m in grid
+            ]
             estimates = {"nearest_neighbour": [np.eye(3)] * len(pairs), "ransac": [ransac_reference(p) for p in pairs]}
             if warp:
                 inputs = [(p.points_a, p.points_b) for p in pairs]
                 first = warp.estimate_batch(inputs, SIZE)
                 estimates["magicwarp"] = list(first)
-                second = warp.estimate_batch([(warp_points(a, H), b) for (a, b), H in zip(inputs, first)], SIZE)
-                estimates["magicwarp_x2"] = [h2 @ h1 / (h2 @ h1)[2, 2] for h1, h2 in zip(first, second)]
-                estimates["magicwarp_refined"] = [refine(a, b, H) for (a, b), H in zip(inputs, first)]
-                estimates["magicwarp_clean_b"] = list(warp.estimate_batch(
-                    [(p.points_a, p.without_spurious().points_b) for p in pairs], SIZE))
+                second = warp.estimate_batch(
+                    [(warp_points(a, H), b) for (a, b), H in zip(inputs, first, strict=False)], SIZE
+                )
+                estimates["magicwarp_x2"] = [h2 @ h1 / (h2 @ h1)[2, 2] for h1, h2 in zip(first, second, strict=False)]
+                estimates["magicwarp_refined"] = [refine(a, b, H) for (a, b), H in zip(inputs, first, strict=False)]
+                estimates["magicwarp_clean_b"] = list(
+                    warp.estimate_batch([(p.points_a, p.without_spurious().points_b) for p in pairs], SIZE)
+                )
             for method in methods:
-                reps[method][run] = [match_repeatability(H, p) for H, p in zip(estimates[method], pairs)]
+                reps[method][run] = [match_repeatability(H, p) for H, p in zip(estimates[method], pairs, strict=False)]
         table.setdefault(density, {}).setdefault(str(extra), {})
         for method in methods:
             value = float(np.mean([_breakdown(grid, r) for r in reps[method]]))
             table[density][str(extra)].setdefault(method, {})[motion] = value
         if density == "medium" and extra == 0.2:
             curves[motion] = {method: reps[method].mean(0).tolist() for method in methods}
-    return {"breakdown": table, "curves": curves, "grids": {m: g.tolist() for m, g in GRIDS.items()}, "runs": runs,
-            **({"motion_errors": motion_errors(warp, runs, seed)} if warp else {})}
+    return {
+        "breakdown": table,
+        "curves": curves,
+        "grids": {m: g.tolist() for m, g in GRIDS.items()},
+        "runs": runs,
+        **({"motion_errors": motion_errors(warp, runs, seed)} if warp else {}),
+    }
 
 
-ERROR_MAGNITUDES = {"translation": (5.0, 10.0, 20.0), "rotation": (5.0, 10.0, 20.0), "scale": (1.05, 1.1, 1.2),
-                    "random_h": (5.0, 10.0, 20.0)}
+ERROR_MAGNITUDES = {
+    "translation": (5.0, 10.0, 20.0),
+    "rotation": (5.0, 10.0, 20.0),
+    "scale": (1.05, 1.1, 1.2),
+    "random_h": (5.0, 10.0, 20.0),
+}
 
 
 def motion_errors(warp: MagicWarp, runs: int = 50, seed: int = 0) -> dict:
@@ -160,17 +188,25 @@ def motion_errors(warp: MagicWarp, runs: int = 50, seed: int = 0) -> dict:
             truths = [motion_homography(motion, magnitude, SIZE, random_direction(rng)) for _ in range(runs)]
             pairs = [make_pair(rng, H, int(rng.integers(25, 51)), 0.2, SIZE) for H in truths]
             estimates = warp.estimate_batch([(p.points_a, p.points_b) for p in pairs], SIZE)
-            result.setdefault(motion, []).append({
-                "magnitude": magnitude, "corner_shift_px": float(np.mean([corner_gap(H, np.eye(3)) for H in truths])),
-                "corner_error_px": float(np.median([corner_gap(E, H) for E, H in zip(estimates, truths)]))})
+            result.setdefault(motion, []).append(
+                {
+                    "magnitude": magnitude,
+                    "corner_shift_px": float(np.mean([corner_gap(H, np.eye(3)) for H in truths])),
+                    "corner_error_px": float(
+                        np.median([corner_gap(E, H) for E, H in zip(estimates, truths, strict=False)])
+                    ),
+                }
+            )
     return result
 
 
 def error_lines(errors: dict) -> list[str]:
     lines = ["raw MagicWarp, medium density, 20% extra: median corner error px / true corner shift px"]
     for motion, rows in errors.items():
-        cells = "   ".join(f"{r['magnitude']:g}{UNITS[motion]}: {r['corner_error_px']:5.2f} / {r['corner_shift_px']:5.2f}"
-                           for r in rows)
+        cells = "   ".join(
+            f"{r['magnitude']:g}{UNITS[motion]}: {r['corner_error_px']:5.2f} / {r['corner_shift_px']:5.2f}"
+            for r in rows
+        )
         lines.append(f"  {motion:<12}{cells}")
     return lines
 
@@ -181,8 +217,11 @@ def short_of_paper(result: dict, method: str) -> list[str]:
     short = []
     for (density, extra), (_, paper) in PAPER.items():
         figures = result["breakdown"][density][str(extra)][method]
-        short += [f"{density} {extra:.0%} {motion} {figures[motion]:.2f}<{target:.2f}"
-                  for motion, target in zip(GRIDS, paper) if round(figures[motion], 2) < target]
+        short += [
+            f"{density} {extra:.0%} {motion} {figures[motion]:.2f}<{target:.2f}"
+            for motion, target in zip(GRIDS, paper, strict=False)
+            if round(figures[motion], 2) < target
+        ]
     return short
 
 
@@ -190,8 +229,16 @@ def table_lines(result: dict) -> list[str]:
     methods = list(next(iter(next(iter(result["breakdown"].values())).values())))
     lines = []
     for method in methods:
-        lines.append(f"{method}: trans px / rot deg / scale x / randH px" + ("   [paper NN]" if method == "nearest_neighbour"
-                                                                               else "   [paper MagicWarp]" if method.startswith("magicwarp") else ""))
+        lines.append(
+            f"{method}: trans px / rot deg / scale x / randH px"
+            + (
+                "   [paper NN]"
+                if method == "nearest_neighbour"
+                else "   [paper MagicWarp]"
+                if method.startswith("magicwarp")
+                else ""
+            )
+        )
         for density, extras in result["breakdown"].items():
             for extra, figures in extras.items():
                 values = " ".join(f"{figures[method][m]:>7.2f}" for m in GRIDS)
@@ -201,27 +248,36 @@ def table_lines(result: dict) -> list[str]:
         if method.startswith("magicwarp"):
             short, cells = short_of_paper(result, method), len(PAPER) * len(GRIDS)
             summary = f"{cells - len(short)} of {cells} cells at or above the paper"
-            lines += textwrap.wrap(summary + (f"; short: {', '.join(short)}" if short else ""), 110,
-                                   initial_indent="  ", subsequent_indent="    ")
+            lines += textwrap.wrap(
+                summary + (f"; short: {', '.join(short)}" if short else ""),
+                110,
+                initial_indent="  ",
+                subsequent_indent="    ",
+            )
     return lines + ([""] + error_lines(result["motion_errors"]) if "motion_errors" in result else [])
 
 
 def save_plots(result: dict, out_dir) -> list:
     """Match repeatability against magnitude for the four motions (medium density, 20% extra points)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 4, figsize=(18, 4))
-    for ax, (motion, curves) in zip(axes, result["curves"].items()):
+    for ax, (motion, curves) in zip(axes, result["curves"].items(), strict=False):
         grid = result["grids"][motion]
         for method, values in curves.items():
             ax.plot(grid, values, label=method)
             breakdown = result["breakdown"]["medium"]["0.2"][method][motion]
             ax.axvline(breakdown, ls="--", lw=0.8, color=ax.lines[-1].get_color())
         ax.axhline(90, color="grey", lw=0.5)
-        ax.set(title=f"{motion} (medium density, 20% extra)", xlabel=UNITS[motion], ylabel="match repeatability (%)",
-               ylim=(0, 101))
+        ax.set(
+            title=f"{motion} (medium density, 20% extra)",
+            xlabel=UNITS[motion],
+            ylabel="match repeatability (%)",
+            ylim=(0, 101),
+        )
     axes[0].legend()
     fig.tight_layout()
     path = out_dir / "warp_breakdown.png"

@@ -1,4 +1,5 @@
 """Forward-pass timings on one CPU thread, BatchNorm folded, after warm-up (the paper's set-up)."""
+
 from __future__ import annotations
 
 import time
@@ -7,8 +8,14 @@ from typing import Callable
 import numpy as np
 import torch
 
-PAPER_MS = {("S", (120, 160)): 5.3, ("S", (240, 320)): 38.1, ("L", (120, 160)): 19.4, ("L", (240, 320)): 150.9,
-            ("warp", (120, 160)): 2.3, ("warp", (240, 320)): 6.1}
+PAPER_MS = {
+    ("S", (120, 160)): 5.3,
+    ("S", (240, 320)): 38.1,
+    ("L", (120, 160)): 19.4,
+    ("L", (240, 320)): 150.9,
+    ("warp", (120, 160)): 2.3,
+    ("warp", (240, 320)): 6.1,
+}
 
 
 def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> float:
@@ -27,9 +34,9 @@ def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> f
 
 def bench_detector(repeats: int = 100) -> list[dict]:
     """MagicPoint S and L forward passes and point extraction at 160x120 and 320x240."""
-    from frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint, MagicPointNet
-    from frontend.points import extract_points
-    from sim.shapes import render
+    from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint, MagicPointNet
+    from deepslam.frontend.points import extract_points
+    from deepslam.sim.shapes import render
 
     torch.set_num_threads(1)
     rows = []
@@ -40,19 +47,27 @@ def bench_detector(repeats: int = 100) -> list[dict]:
         for size in ((120, 160), (240, 320)):
             x = torch.rand(1, 1, *size)
             with torch.inference_mode():
-                forward = time_ms(lambda: model.net(x), repeats if variant == "S" else max(10, repeats // 5))
+                count = repeats if variant == "S" else max(10, repeats // 5)
+                forward = time_ms(lambda x=x, model=model: model.net(x), count)
             heatmap = model.heatmap(np.ascontiguousarray(image[: size[0], : size[1]]))
-            extraction = time_ms(lambda: extract_points(heatmap, 0.015, 4, 4), repeats)
-            rows.append({"model": f"MagicPoint{variant}", "size": f"{size[1]}x{size[0]}", "forward_ms": forward,
-                         "extract_ms": extraction, "paper_ms": PAPER_MS[(variant, size)],
-                         "weights": "shipped" if shipped else "untrained"})
+            extraction = time_ms(lambda heatmap=heatmap: extract_points(heatmap, 0.015, 4, 4), repeats)
+            rows.append(
+                {
+                    "model": f"MagicPoint{variant}",
+                    "size": f"{size[1]}x{size[0]}",
+                    "forward_ms": forward,
+                    "extract_ms": extraction,
+                    "paper_ms": PAPER_MS[(variant, size)],
+                    "weights": "shipped" if shipped else "untrained",
+                }
+            )
     return rows
 
 
 def bench_warp(repeats: int = 200) -> list[dict]:
     """MagicWarp forward passes on 20x15x130 and 40x30x130 inputs (the shipped network, or the default
     architecture untrained when no weights are shipped)."""
-    from frontend.magicwarp import WEIGHTS, MagicWarp, MagicWarpNet
+    from deepslam.frontend.magicwarp import WEIGHTS, MagicWarp, MagicWarpNet
 
     torch.set_num_threads(1)
     shipped = (WEIGHTS / "magicwarp.pt").exists()
@@ -61,7 +76,14 @@ def bench_warp(repeats: int = 200) -> list[dict]:
     for size in ((120, 160), (240, 320)):
         x = torch.rand(1, 130, size[0] // 8, size[1] // 8)
         with torch.inference_mode():
-            forward = time_ms(lambda: warp.net(x), repeats)
-        rows.append({"model": "MagicWarp", "input": f"{size[1] // 8}x{size[0] // 8}x130", "forward_ms": forward,
-                     "paper_ms": PAPER_MS[("warp", size)], "weights": "shipped" if shipped else "untrained"})
+            forward = time_ms(lambda x=x: warp.net(x), repeats)
+        rows.append(
+            {
+                "model": "MagicWarp",
+                "input": f"{size[1] // 8}x{size[0] // 8}x130",
+                "forward_ms": forward,
+                "paper_ms": PAPER_MS[("warp", size)],
+                "weights": "shipped" if shipped else "untrained",
+            }
+        )
     return rows

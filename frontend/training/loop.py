@@ -8,6 +8,7 @@ Options every training shares (``LoopConfig``): a new run can start from another
 (``init``, a fine-tuning stage), and can keep an exponential moving average of the weights (``ema``),
 which is then what validation scores, ``best.pt`` keeps and ``export_weights`` ships.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,9 +23,8 @@ import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
 
-from frontend.nets import embed_weights, network_config, read_weights
-
-WIDENABLE = {"widths", "hidden", "head"}  # network config fields --init may widen (same layers, more units)
+from deepslam.frontend.nets import network_config
+from deepslam.frontend.training.surgery import config_of, load_weights
 
 
 @dataclass(frozen=True)
@@ -37,12 +37,15 @@ class LoopConfig:
     seed: int = 0
     validate_every: int = 500
     threads: int = 1
-    ema: float = 0.0    # decay of the weights' moving average per step (0: none; 0.999 ~ the last 1000 steps)
-    init: str = ""      # weights (checkpoint or shipped file) a new run starts from; ignored when resuming
+    ema: float = 0.0  # decay of the weights' moving average per step (0: none; 0.999 ~ the last 1000 steps)
+    init: str = ""  # weights (checkpoint or shipped file) a new run starts from; ignored when resuming
 
     def __post_init__(self):
-        problems = [f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}"
-                    for name in ("iterations", "batch", "validate_every", "threads") if getattr(self, name) < 1]
+        problems = [
+            f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}"
+            for name in ("iterations", "batch", "validate_every", "threads")
+            if getattr(self, name) < 1
+        ]
         if not self.lr > 0:
             problems.append(f"--lr must be positive, got {self.lr}")
         if self.seed < 0:
@@ -53,12 +56,26 @@ class LoopConfig:
             raise ValueError("; ".join(problems))
 
 
-def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int,
-                    rng: np.random.Generator, config: Any, extra: dict) -> None:
+def save_checkpoint(
+    path: Path,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    step: int,
+    rng: np.random.Generator,
+    config: Any,
+    extra: dict,
+) -> None:
     """Write a checkpoint atomically (a killed write never leaves a broken file). ``extra`` may hold
     "ema", the averaged model's state dict."""
-    state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
-             "rng": rng.bit_generator.state, "config": asdict(model.config), "train_config": asdict(config), **extra}
+    state = {
+        "model": model.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "step": step,
+        "rng": rng.bit_generator.state,
+        "config": asdict(model.config),
+        "train_config": asdict(config),
+        **extra,
+    }
     tmp = path.with_suffix(".tmp")
     torch.save(state, tmp)
     tmp.replace(path)
@@ -82,40 +99,6 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
     return kept
 
 
-def _config_of(model: torch.nn.Module, saved: dict):
-    """``saved`` (a network config as a file stores it) as ``model``'s config class, with fields newer
-    than the file at their defaults; None if it is not a config of that class."""
-    try:
-        return type(model.config)(**saved)
-    except (TypeError, ValueError):
-        return None
-
-
-def load_weights(model: torch.nn.Module, path: Path) -> None:
-    """Load the weights of a checkpoint or shipped file into ``model`` (its averaged weights if any).
-    Weights of a network that differs only by narrower ``widths`` / ``hidden`` layers are embedded
-    (``frontend.nets.embed_weights``), and a network with fewer blocks per stage is first deepened
-    (the model's ``deepened``, where it has one): the larger network starts from the same function."""
-    if not Path(path).exists():
-        raise FileNotFoundError(f"no weights to start from at {path}")
-    config, weights = read_weights(path)
-    saved, wanted = _config_of(model, config), asdict(model.config)
-    other_shape = f"{path} holds a network of another shape ({config}), not {wanted}"
-    if saved is None:
-        raise ValueError(f"{other_shape}: its layout differs")
-    try:
-        if hasattr(model, "deepened") and saved.blocks != model.config.blocks:
-            saved, weights = model.deepened(saved, weights, model.config.blocks)
-        if saved == model.config:
-            model.load_state_dict(weights)
-            return
-        if not {key for key, value in asdict(saved).items() if value != wanted[key]} <= WIDENABLE:
-            raise ValueError("its layout differs")
-        embed_weights(model, weights)
-    except ValueError as error:
-        raise ValueError(f"{other_shape}: {error}") from None
-
-
 def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) -> AveragedModel | None:
     """The exponential moving average of ``model``'s weights and BatchNorm statistics (None if off)."""
     if not decay:
@@ -127,9 +110,14 @@ def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) ->
     return ema
 
 
-def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
-          step_fn: Callable[[int, np.random.Generator], dict[str, torch.Tensor]],
-          validate_fn: Callable[[torch.nn.Module], dict[str, float]], score_key: str) -> dict:
+def train(
+    model: torch.nn.Module,
+    config: LoopConfig,
+    out_dir: Path,
+    step_fn: Callable[[int, np.random.Generator], dict[str, torch.Tensor]],
+    validate_fn: Callable[[torch.nn.Module], dict[str, float]],
+    score_key: str,
+) -> dict:
     """Run ``config.iterations`` optimisation steps (resuming from ``out_dir/last.pt``).
 
     ``step_fn(step, rng)`` builds a batch and returns {"loss": tensor, ...}; ``validate_fn(model)``
@@ -144,9 +132,11 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
     last = out_dir / "last.pt"
     if last.exists():
         state = torch.load(last, map_location="cpu", weights_only=False)
-        if _config_of(model, network_config(state)) != model.config:
-            raise ValueError(f"{last} holds a network of another shape ({network_config(state)}), not "
-                             f"{asdict(model.config)}: resume it with its own options, or train into another folder")
+        if config_of(model, network_config(state)) != model.config:
+            raise ValueError(
+                f"{last} holds a network of another shape ({network_config(state)}), not "
+                f"{asdict(model.config)}: resume it with its own options, or train into another folder"
+            )
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         for group in optimizer.param_groups:  # resuming with another --lr applies it (a manual schedule)
@@ -174,8 +164,10 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
             ema.update_parameters(model)
         step += 1
         bar.update(1)
-        bar.set_postfix({k: f"{float(v.detach()):.4g}" for k, v in out.items()} | {k: f"{v:.3g}" for k, v in figures.items()
-                                                                          if k != "step"})
+        bar.set_postfix(
+            {k: f"{float(v.detach()):.4g}" for k, v in out.items()}
+            | {k: f"{v:.3g}" for k, v in figures.items() if k != "step"}
+        )
         if step % config.validate_every == 0 or step == config.iterations:
             scored.eval()
             with torch.no_grad():
@@ -186,7 +178,9 @@ def train(model: torch.nn.Module, config: LoopConfig, out_dir: Path,
             history.append(figures)
             (out_dir / "history.json").write_text(json.dumps(history, indent=1))
             bar.write(json.dumps(figures))
-            extra = {"elapsed": time.time() - started, "history": history} | ({"ema": ema.module.state_dict()} if ema else {})
+            extra = {"elapsed": time.time() - started, "history": history} | (
+                {"ema": ema.module.state_dict()} if ema else {}
+            )
             if figures[score_key] > best:
                 best = figures[score_key]
                 save_checkpoint(out_dir / "best.pt", model, optimizer, step, rng, config, {"best": best, **extra})

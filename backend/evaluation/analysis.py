@@ -1,13 +1,14 @@
 """Drift analysis from logs alone: figures side by side, plots, TUM export."""
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from backend import drift
-from logs.frames import quaternion_from_matrix
-from logs.reader import LogError, read_frames, read_metadata
+from deepslam.backend import drift
+from deepslam.logs.frames import quaternion_from_matrix
+from deepslam.logs.reader import LogError, read_frames, read_metadata
 
 
 def load_trajectories(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -29,17 +30,26 @@ def analyse(paths: list[str | Path], delta: int = 1) -> dict[str, dict]:
     for path in paths:
         _, truth, estimate = load_trajectories(path)
         meta = read_metadata(path)
-        results[str(path)] = {**drift.summary(estimate, truth, delta), "frontend": meta.get("frontend", "?"),
-                              "scale": meta.get("odometry", {}).get("scale", "?")}
+        results[str(path)] = {
+            **drift.summary(estimate, truth, delta),
+            "frontend": meta.get("frontend", "?"),
+            "scale": meta.get("odometry", {}).get("scale", "?"),
+        }
     return results
 
 
 def table_lines(results: dict[str, dict]) -> list[str]:
-    header = f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE t':>8} {'RPE deg':>8} {'final %':>8} {'path m':>7}"
+    header = (
+        f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE t':>8} {'RPE deg':>8} "
+        f"{'final %':>8} {'path m':>7}"
+    )
     rows = [header]
     for path, r in results.items():
-        rows.append(f"{Path(path).name[-28:]:<28} {r['frontend']:<9} {r['scale']:<6} {r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
-                    f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} {r['path_length']:>7.2f}")
+        rows.append(
+            f"{Path(path).name[-28:]:<28} {r['frontend']:<9} {r['scale']:<6} "
+            f"{r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
+            f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} {r['path_length']:>7.2f}"
+        )
     return rows
 
 
@@ -48,6 +58,7 @@ def save_plots(paths: list[str | Path], out_dir: Path, delta: int = 1) -> list[P
     a camera moving on the ground; a front view for one circling in a vertical plane), translation error
     over time, RPE distribution."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -64,8 +75,11 @@ def save_plots(paths: list[str | Path], out_dir: Path, delta: int = 1) -> list[P
         axes[1].plot(seconds, np.linalg.norm(estimate[:, :3, 3] - truth[:, :3, 3], axis=1), label=label)
         axes[2].hist(drift.rpe(estimate, truth, delta)[0], bins=30, alpha=0.5, label=label)
     names = "xyz"
-    axes[0].set(title=f"trajectory ({names[shown[0]]}, {names[shown[1]]})", xlabel=f"{names[shown[0]]} (m)",
-                ylabel=f"{names[shown[1]]} (m)")
+    axes[0].set(
+        title=f"trajectory ({names[shown[0]]}, {names[shown[1]]})",
+        xlabel=f"{names[shown[0]]} (m)",
+        ylabel=f"{names[shown[1]]} (m)",
+    )
     axes[0].axis("equal")
     axes[1].set(title="translation error over time (no alignment)", xlabel="time (s)", ylabel="error (m)")
     axes[2].set(title=f"RPE translation, delta = {delta} frame(s)", xlabel="error (m)", ylabel="frames")
@@ -85,8 +99,10 @@ def export_tum(path: str | Path, out_dir: Path) -> list[Path]:
     written = []
     for name, poses in (("groundtruth", truth), ("estimate", estimate)):
         target = out_dir / f"{Path(path).stem}.{name}.tum"
-        lines = [f"{t / 1e9:.9f} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *quaternion_from_matrix(T[:3, :3])))
-                 for t, T in zip(stamps, poses)]
+        lines = [
+            f"{t / 1e9:.9f} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *quaternion_from_matrix(T[:3, :3])))
+            for t, T in zip(stamps, poses, strict=False)
+        ]
         target.write_text("\n".join(lines) + "\n")
         written.append(target)
     return written

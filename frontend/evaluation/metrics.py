@@ -2,13 +2,14 @@
 
 Detections are float (N, 3) [x, y, score] arrays; ground truth float (K, 2) [x, y] arrays.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from frontend.magicwarp import warp_points
+from deepslam.geometry import in_image, warp_points
 
 
 @dataclass
@@ -43,10 +44,12 @@ def match_detections(detections: np.ndarray, corners: np.ndarray, eps: float = 4
 
 def merge(results: list[DetectionScores]) -> DetectionScores:
     """Pool per-image outcomes into one set."""
-    return DetectionScores(np.concatenate([r.score for r in results] + [np.zeros(0)]),
-                           np.concatenate([r.correct for r in results] + [np.zeros(0, bool)]),
-                           np.concatenate([r.distance for r in results] + [np.zeros(0)]),
-                           sum(r.positives for r in results))
+    return DetectionScores(
+        np.concatenate([r.score for r in results] + [np.zeros(0)]),
+        np.concatenate([r.correct for r in results] + [np.zeros(0, bool)]),
+        np.concatenate([r.distance for r in results] + [np.zeros(0)]),
+        sum(r.positives for r in results),
+    )
 
 
 def average_precision(result: DetectionScores) -> float:
@@ -68,14 +71,14 @@ def localization_error(result: DetectionScores) -> float:
     return float(np.nanmean(result.distance[result.correct])) if result.correct.any() else float("nan")
 
 
-def repeatability(points_1: np.ndarray, points_2: np.ndarray, H_12: np.ndarray, size: tuple[int, int],
-                  eps: float = 2.0) -> float:
+def repeatability(
+    points_1: np.ndarray, points_2: np.ndarray, H_12: np.ndarray, size: tuple[int, int], eps: float = 2.0
+) -> float:
     """Share of points, in both images, with a detection of the other image within ``eps`` after
     warping by the known homography ``H_12``; only points seen by both views count."""
-    h, w = size
 
     def visible(points):
-        return (points[:, 0] >= 0) & (points[:, 0] <= w - 1) & (points[:, 1] >= 0) & (points[:, 1] <= h - 1)
+        return in_image(points, size, margin=0.5)
 
     p1, p2 = np.asarray(points_1, np.float64)[:, :2], np.asarray(points_2, np.float64)[:, :2]
     p1_in_2, p2_in_1 = warp_points(p1, H_12), warp_points(p2, np.linalg.inv(H_12))
@@ -87,8 +90,12 @@ def repeatability(points_1: np.ndarray, points_2: np.ndarray, H_12: np.ndarray, 
     return float(((gaps.min(1) <= eps).sum() + (gaps.min(0) <= eps).sum()) / (len(p1) + len(p2)))
 
 
-def repeatability_at_n(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], size: tuple[int, int],
-                       counts: tuple[int, ...] = (10, 20, 30, 50, 75, 100, 150, 200, 300), eps: float = 2.0) -> tuple[float, float]:
+def repeatability_at_n(
+    pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    size: tuple[int, int],
+    counts: tuple[int, ...] = (10, 20, 30, 50, 75, 100, 150, 200, 300),
+    eps: float = 2.0,
+) -> tuple[float, float]:
     """The paper's repeatability@N: mean repeatability over (points_1, points_2, H_12) pairs for the
     best ``n`` detections of each image, maximised over ``n``. Returns (repeatability, N), N the mean
     detection count at the maximum. Points must be sorted by descending score."""

@@ -1,4 +1,5 @@
 """Training MagicPoint on Synthetic Shapes with homographic warps and full photometric noise."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,10 +9,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from frontend.cells import CELL
-from frontend.magicpoint import VARIANTS, MagicPointNet
-from frontend.training import LoopConfig, train
-from sim.shapes import training_stream
+from deepslam.frontend.cells import CELL
+from deepslam.frontend.magicpoint import VARIANTS, MagicPointNet
+from deepslam.frontend.training.loop import LoopConfig, train
+from deepslam.sim.shapes import training_stream
 
 
 @dataclass(frozen=True)
@@ -41,8 +42,10 @@ def cell_labels(corners: list[np.ndarray], size: tuple[int, int], rng: np.random
     return labels
 
 
-def make_batch(stream, rng: np.random.Generator, batch: int, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
-    images, corners = zip(*(next(stream) for _ in range(batch)))
+def make_batch(
+    stream, rng: np.random.Generator, batch: int, size: tuple[int, int]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    images, corners = zip(*(next(stream) for _ in range(batch)), strict=False)
     x = torch.from_numpy(np.stack(images)).float().div_(255.0)[:, None]
     return x, torch.from_numpy(cell_labels(list(corners), size, rng))
 
@@ -51,9 +54,9 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int
     """Train (or resume) into ``out_dir``. Validation: mAP and MLE on a fixed seeded Synthetic Shapes set,
     noisy and clean, extracted as the evaluation does; their mean ("map", both are targets) picks
     ``best.pt``."""
-    from frontend.evaluate_detector import SHAPES_EXTRACTION, evaluate_set, noisy_set
-    from frontend.magicpoint import MagicPoint
-    from sim.shapes import evaluation_set
+    from deepslam.frontend.evaluation.detector import SHAPES_EXTRACTION, evaluate_set, noisy_set
+    from deepslam.frontend.magicpoint import MagicPoint
+    from deepslam.sim.shapes import evaluation_set
 
     torch.set_num_threads(config.threads)
     model = MagicPointNet(VARIANTS[config.variant])
@@ -71,7 +74,12 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int
     def validate(net: MagicPointNet) -> dict:
         detector = MagicPoint(net, **SHAPES_EXTRACTION)
         noisy, clean = evaluate_set(detector, validation), evaluate_set(detector, clean_validation)
-        return {"map": (noisy["map"] + clean["map"]) / 2, "map_noisy": noisy["map"], "mle_noisy": noisy["mle"],
-                "map_clean": clean["map"], "mle_clean": clean["mle"]}
+        return {
+            "map": (noisy["map"] + clean["map"]) / 2,
+            "map_noisy": noisy["map"],
+            "mle_noisy": noisy["mle"],
+            "map_clean": clean["map"],
+            "mle_clean": clean["mle"],
+        }
 
     return train(model, config, out_dir, step_fn, validate, "map")

@@ -1,4 +1,5 @@
 """Detector evaluation on Synthetic Shapes: the paper's table, per category, noise magnitude and type."""
+
 from __future__ import annotations
 
 from typing import Protocol
@@ -7,9 +8,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from frontend.metrics import average_precision, localization_error, match_detections, merge
-from sim import noise
-from sim.world import photo
+from deepslam.frontend.evaluation.metrics import average_precision, localization_error, match_detections, merge
+from deepslam.sim import noise
+from deepslam.sim.world import photo
 
 Item = tuple[str, np.ndarray, np.ndarray]  # (category, image, corners)
 
@@ -20,8 +21,10 @@ class Detector(Protocol):
 
 def noisy_set(items: list[Item], seed: int, s: float = 1.0, kind: str = "full") -> list[Item]:
     """The same images with noise of ``kind`` at magnitude ``s``; each image's noise has its own seed."""
-    return [(category, noise.apply(image, np.random.default_rng([seed, index]), s, kind), corners)
-            for index, (category, image, corners) in enumerate(items)]
+    return [
+        (category, noise.apply(image, np.random.default_rng([seed, index]), s, kind), corners)
+        for index, (category, image, corners) in enumerate(items)
+    ]
 
 
 def evaluate_set(detector: Detector, items: list[Item], progress: str | None = None) -> dict:
@@ -33,14 +36,20 @@ def evaluate_set(detector: Detector, items: list[Item], progress: str | None = N
     per_category = {}
     for category, results in by_category.items():
         merged = merge(results)
-        per_category[category] = {"ap": average_precision(merged), "mle": localization_error(merged),
-                                  "false_positives_per_image": float((~merged.correct).sum() / len(results))}
+        per_category[category] = {
+            "ap": average_precision(merged),
+            "mle": localization_error(merged),
+            "false_positives_per_image": float((~merged.correct).sum() / len(results)),
+        }
     return {"map": average_precision(pooled), "mle": localization_error(pooled), "per_category": per_category}
 
 
 PAPER_TABLE = {  # the paper's Synthetic Shapes table: mAP clean, mAP noisy, MLE clean, MLE noisy
-    "MagicPointL": (0.979, 0.971, 0.860, 1.012), "MagicPointS": (0.980, 0.939, 0.922, 1.078),
-    "FAST": (0.405, 0.061, 1.656, 1.766), "Harris": (0.678, 0.213, 1.245, 1.409), "Shi": (0.686, 0.157, 1.188, 1.383),
+    "MagicPointL": (0.979, 0.971, 0.860, 1.012),
+    "MagicPointS": (0.980, 0.939, 0.922, 1.078),
+    "FAST": (0.405, 0.061, 1.656, 1.766),
+    "Harris": (0.678, 0.213, 1.245, 1.409),
+    "Shi": (0.686, 0.157, 1.188, 1.383),
 }
 SWEEP = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
 SHAPES_EXTRACTION = {"threshold": 0.001, "border": 0}
@@ -52,20 +61,25 @@ def available_detectors(threshold: float = 0.001, border: int = 4) -> dict[str, 
     """FAST, Harris, Shi, every MagicPoint variant whose weights are shipped, MagicPoint S with four
     grid shifts (``MagicPointS-x4``) and S on the image enlarged 2x with two grid shifts, as the magic
     tracker runs it (``MagicPointS-2x``); all drop detections within ``border`` pixels of the edge."""
-    from frontend.classical import ClassicalDetector
-    from frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
+    from deepslam.frontend.classical import ClassicalDetector
+    from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
 
-    detectors: dict[str, Detector] = {f"MagicPoint{v}": MagicPoint.pretrained(v, threshold=threshold, border=border)
-                                      for v in VARIANTS if (WEIGHTS / f"magicpoint_{v}.pt").exists()}
+    detectors: dict[str, Detector] = {
+        f"MagicPoint{v}": MagicPoint.pretrained(v, threshold=threshold, border=border)
+        for v in VARIANTS
+        if (WEIGHTS / f"magicpoint_{v}.pt").exists()
+    }
     detectors["MagicPointS-x4"] = MagicPoint.pretrained("S", threshold=threshold, border=border, grid_shifts=4)
-    detectors["MagicPointS-2x"] = MagicPoint.pretrained("S", threshold=threshold, border=border, grid_shifts=2, upsample=2)
+    detectors["MagicPointS-2x"] = MagicPoint.pretrained(
+        "S", threshold=threshold, border=border, grid_shifts=2, upsample=2
+    )
     detectors.update({kind: ClassicalDetector(kind.lower(), border=border) for kind in ("FAST", "Harris", "Shi")})
     return detectors
 
 
 def report(detectors: dict[str, Detector], per_category: int, sweep_per_category: int, seed: int) -> dict:
     """Everything ``deepslam eval detector`` shows: table, per category, noise sweep, noise types."""
-    from sim.shapes import evaluation_set
+    from deepslam.sim.shapes import evaluation_set
 
     items = evaluation_set(per_category, seed=seed)
     noisy = noisy_set(items, seed)
@@ -75,10 +89,10 @@ def report(detectors: dict[str, Detector], per_category: int, sweep_per_category
         clean_figures = evaluate_set(detector, items, f"{name} clean")
         noisy_figures = evaluate_set(detector, noisy, f"{name} noisy")
         sweep = {s: evaluate_set(detector, noisy_set(sweep_items, seed, s), f"{name} s={s}") for s in SWEEP}
-        kinds = {k: evaluate_set(detector, noisy_set(sweep_items, seed, 1.0, k), f"{name} {k}")
-                 for k in noise.KINDS}
+        kinds = {k: evaluate_set(detector, noisy_set(sweep_items, seed, 1.0, k), f"{name} {k}") for k in noise.KINDS}
         result["detectors"][name] = {
-            "clean": clean_figures, "noisy": noisy_figures,
+            "clean": clean_figures,
+            "noisy": noisy_figures,
             "sweep": {str(s): {"map": f["map"], "mle": f["mle"]} for s, f in sweep.items()},
             "noise_types": {k: {"map": f["map"], "mle": f["mle"]} for k, f in kinds.items()},
         }
@@ -87,7 +101,10 @@ def report(detectors: dict[str, Detector], per_category: int, sweep_per_category
 
 def table_lines(result: dict) -> list[str]:
     """The paper's table with this run's figures and the paper's beside them."""
-    lines = [f"{'detector':<13} {'mAP clean':>10} {'mAP noisy':>10} {'MLE clean':>10} {'MLE noisy':>10}   paper (same columns)"]
+    lines = [
+        f"{'detector':<13} {'mAP clean':>10} {'mAP noisy':>10} {'MLE clean':>10} {'MLE noisy':>10}"
+        "   paper (same columns)"
+    ]
     for name, figures in result["detectors"].items():
         ours = (figures["clean"]["map"], figures["noisy"]["map"], figures["clean"]["mle"], figures["noisy"]["mle"])
         paper = " / ".join(f"{v:.3f}" for v in PAPER_TABLE.get(name, ()))
@@ -100,8 +117,10 @@ def category_lines(result: dict) -> list[str]:
     categories = list(next(iter(result["detectors"].values()))["clean"]["per_category"])
     lines = [f"{'AP clean/noisy':<16}" + "".join(f"{n:>16}" for n in names)]
     for category in categories:
-        cells = [f"{d['clean']['per_category'][category]['ap']:.3f}/{d['noisy']['per_category'][category]['ap']:.3f}"
-                 for d in result["detectors"].values()]
+        cells = [
+            f"{d['clean']['per_category'][category]['ap']:.3f}/{d['noisy']['per_category'][category]['ap']:.3f}"
+            for d in result["detectors"].values()
+        ]
         lines.append(f"{category:<16}" + "".join(f"{c:>16}" for c in cells))
     return lines
 
@@ -109,6 +128,7 @@ def category_lines(result: dict) -> list[str]:
 def save_plots(result: dict, out_dir) -> list:
     """PNG plots: per-category AP, mAP/MLE against noise magnitude, mAP per noise type."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -117,10 +137,14 @@ def save_plots(result: dict, out_dir) -> list:
     categories = list(next(iter(detectors.values()))["clean"]["per_category"])
     fig, axes = plt.subplots(1, 2, figsize=(13, 4), sharey=True)
     width = 0.8 / len(detectors)
-    for ax, condition in zip(axes, ("clean", "noisy")):
+    for ax, condition in zip(axes, ("clean", "noisy"), strict=False):
         for i, (name, figures) in enumerate(detectors.items()):
-            ax.bar(np.arange(len(categories)) + i * width, [figures[condition]["per_category"][c]["ap"] for c in categories],
-                   width, label=name)
+            ax.bar(
+                np.arange(len(categories)) + i * width,
+                [figures[condition]["per_category"][c]["ap"] for c in categories],
+                width,
+                label=name,
+            )
         ax.set_xticks(np.arange(len(categories)) + 0.4 - width / 2, categories, rotation=45, ha="right")
         ax.set_title(f"AP per category ({condition})")
     axes[0].legend()
@@ -152,10 +176,25 @@ def save_plots(result: dict, out_dir) -> list:
     return paths
 
 
-PHOTOS = ("camera", "brick", "coins", "text", "page", "clock", "astronaut", "coffee", "chelsea", "rocket", "checkerboard")
+PHOTOS = (
+    "camera",
+    "brick",
+    "coins",
+    "text",
+    "page",
+    "clock",
+    "astronaut",
+    "coffee",
+    "chelsea",
+    "rocket",
+    "checkerboard",
+)
 PAPER_STATIC_R = {  # the paper's 30 Static Corners repeatability: (160x120 clean, noisy, 320x240 clean, noisy)
-    "MagicPointL": (0.970, 0.811, 0.959, 0.765), "MagicPointS": (0.929, 0.711, 0.920, 0.675),
-    "FAST": (0.800, 0.141, 0.812, 0.099), "Harris": (0.929, 0.136, 0.896, 0.081), "Shi": (0.852, 0.148, 0.827, 0.104),
+    "MagicPointL": (0.970, 0.811, 0.959, 0.765),
+    "MagicPointS": (0.929, 0.711, 0.920, 0.675),
+    "FAST": (0.800, 0.141, 0.812, 0.099),
+    "Harris": (0.929, 0.136, 0.896, 0.081),
+    "Shi": (0.852, 0.148, 0.827, 0.104),
 }
 
 
@@ -164,17 +203,24 @@ def _jittered(sequence: list[np.ndarray], rng: np.random.Generator, jitter_px: f
     hand-held camera; reflected borders); returns (frames, homographies (3, 3) from each frame to the next)."""
     shifts = rng.uniform(-jitter_px, jitter_px, (len(sequence), 2))
     moves = [np.array([[1.0, 0, dx], [0, 1, dy], [0, 0, 1]]) for dx, dy in shifts]
-    frames = [cv2.warpAffine(f, M[:2], f.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-              for f, M in zip(sequence, moves)]
-    return frames, [b @ np.linalg.inv(a) for a, b in zip(moves, moves[1:])]
+    frames = [
+        cv2.warpAffine(f, M[:2], f.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+        for f, M in zip(sequence, moves, strict=False)
+    ]
+    return frames, [b @ np.linalg.inv(a) for a, b in zip(moves, moves[1:], strict=False)]
 
 
-def static_repeatability(detectors: dict[str, Detector], frames: int = 20, seed: int = 0,
-                         sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320)), jitter_px: float = 0.0) -> dict:
+def static_repeatability(
+    detectors: dict[str, Detector],
+    frames: int = 20,
+    seed: int = 0,
+    sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320)),
+    jitter_px: float = 0.0,
+) -> dict:
     """Frame-to-frame repeatability@N (eps=2) on real photographs seen by a static camera under
     changing light, clean and with the full noise of ``sim.noise``; with ``jitter_px`` > 0 every frame
     is also translated by up to that many pixels (the true homographies are used)."""
-    from frontend.metrics import repeatability_at_n
+    from deepslam.frontend.evaluation.metrics import repeatability_at_n
 
     result: dict = {}
     for size in sizes:
@@ -184,14 +230,17 @@ def static_repeatability(detectors: dict[str, Detector], frames: int = 20, seed:
             for name in PHOTOS:
                 sequence = noise.relit_sequence(photo(name, size), frames, rng)
                 sequence = [noise.apply(f, rng, 1.0) for f in sequence] if noisy else sequence
-                sequences.append(_jittered(sequence, rng, jitter_px) if jitter_px > 0
-                                 else (sequence, [np.eye(3)] * (len(sequence) - 1)))
+                sequences.append(
+                    _jittered(sequence, rng, jitter_px)
+                    if jitter_px > 0
+                    else (sequence, [np.eye(3)] * (len(sequence) - 1))
+                )
             key = f"{size[1]}x{size[0]} {'noisy' if noisy else 'clean'}"
             for name, detector in detectors.items():
                 pairs = []
                 for sequence, homographies in tqdm(sequences, desc=f"{name} {key}", leave=False):
                     points = [detector.detect(f) for f in sequence]
-                    pairs += list(zip(points, points[1:], homographies))
+                    pairs += list(zip(points, points[1:], homographies, strict=False))
                 rep, count = repeatability_at_n(pairs, size)
                 result.setdefault(name, {})[key] = {"repeatability": rep, "n": count}
     return result
@@ -203,6 +252,9 @@ def static_lines(result: dict) -> list[str]:
     lines = [f"{'repeatability@N':<14}" + "".join(f"{k:>22}" for k in keys) + "   paper R (same columns)"]
     for name, figures in result.items():
         paper = " / ".join(f"{v:.3f}" for v in PAPER_STATIC_R.get(name, ()))
-        lines.append(f"{name:<14}" + "".join(f"{figures[k]['repeatability']:>14.3f} @{figures[k]['n']:>5.0f}  "
-                                             for k in keys) + f"   {paper}")
+        lines.append(
+            f"{name:<14}"
+            + "".join(f"{figures[k]['repeatability']:>14.3f} @{figures[k]['n']:>5.0f}  " for k in keys)
+            + f"   {paper}"
+        )
     return lines

@@ -1,0 +1,1 @@
+"""Runs of the whole pipeline on simulated scenarios and logs, sweeps, drift analysis and timings."""

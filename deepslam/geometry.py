@@ -1,0 +1,31 @@
+"""Conventions every package shares: pixel coordinates, point warping, path length.
+
+Pixels are float (x, y), x right, y down, the centre of the top-left pixel at (0, 0), so an image of
+size (H, W) covers [-0.5, W - 0.5] x [-0.5, H - 0.5]. ``H_ab`` maps points of image a to image b.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def warp_points(points: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """Apply a homography (3, 3) to (N, 2+) points (extra columns ignored); returns (N, 2) float64."""
+    points = np.asarray(points, np.float64)
+    points = points.reshape(-1, points.shape[-1] if points.ndim > 1 else 2)[:, :2]
+    moved = points @ H[:, :2].T + H[:, 2]
+    return moved[:, :2] / moved[:, 2:3]
+
+
+def in_image(points: np.ndarray, size: tuple[int, int], margin: float = 0.0) -> np.ndarray:
+    """Mask (N,) of (N, 2+) points inside an image of ``size`` (H, W), edges inclusive, at least
+    ``margin`` pixels from the image's outer edge. ``margin=0.5`` keeps the points between the
+    centres of the outermost pixels, [0, W - 1] x [0, H - 1]."""
+    h, w = size
+    x, y = np.asarray(points, np.float64)[:, 0], np.asarray(points, np.float64)[:, 1]
+    return (x >= -0.5 + margin) & (x <= w - 0.5 - margin) & (y >= -0.5 + margin) & (y <= h - 0.5 - margin)
+
+
+def path_length(poses: np.ndarray) -> float:
+    """Length (m) of the path through the positions of (N, 4, 4) poses."""
+    return float(np.linalg.norm(np.diff(np.asarray(poses)[:, :3, 3], axis=0), axis=1).sum())
