@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -24,7 +25,8 @@ from deepslam.backend import relpose
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.frontend.tracking import Tracker, Tracks, Truth
 
-SCALES = ("gt", "plane")
+Scale = Literal["gt", "plane"]
+SCALES: tuple[str, ...] = get_args(Scale)
 
 
 @dataclass
@@ -41,10 +43,28 @@ class InputFrame:
 
 @dataclass(frozen=True)
 class OdometryConfig:
-    method: str = "homography"  # relative pose: homography (default, measured best here) | auto | essential | pycolmap
-    scale: str = "gt"  # gt | plane
-    plane_distance: float | None = None  # for scale="plane": distance of the first camera to the plane
-    keyframe_parallax: float = 10.0  # pixels of median track motion that make a new keyframe
+    """Every documented field is an option of ``deepslam run`` and ``deepslam replay``."""
+
+    method: relpose.Method = field(
+        default="homography",
+        metadata={
+            "help": "relative pose: homography (dominant plane; most accurate on these worlds), auto (ORB-SLAM "
+            "H/F selection), essential, or pycolmap"
+        },
+    )
+    scale: Scale = field(
+        default="gt",
+        metadata={
+            "help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane"
+        },
+    )
+    plane_distance: float | None = field(
+        default=None,
+        metadata={"help": "first camera's distance (m) to the dominant plane for --scale plane (simulation: known)"},
+    )
+    keyframe_parallax: float = field(
+        default=10.0, metadata={"help": "median track motion (px) since the keyframe that makes a new keyframe"}
+    )
     min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
     min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
     covariance: bool = True  # compute the latest pose's marginal covariance every frame

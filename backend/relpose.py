@@ -12,11 +12,13 @@ or, for the homography, ``t / d`` with d the distance of camera 1 to the plane.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
 
-METHODS = ("auto", "homography", "essential", "pycolmap")
+Method = Literal["auto", "homography", "essential", "pycolmap"]
+METHODS: tuple[str, ...] = get_args(Method)
 MIN_MATCHES = 8
 STATIC_FLOW_PX = 0.3
 

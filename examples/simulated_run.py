@@ -5,12 +5,13 @@ python examples/simulated_run.py
 
 from deepslam.backend.evaluation.runs import simulate
 from deepslam.backend.odometry import OdometryConfig
+from deepslam.frontend.tracking import TrackerConfig
 from deepslam.logs.reader import read_frames
 from deepslam.sim.scenario import ScenarioConfig
 
 result = simulate(
     ScenarioConfig(world="room", trajectory="figure8", frames=40),
-    "classical",
+    TrackerConfig(frontend="classical"),
     OdometryConfig(scale="gt"),
     out="out/example.mcap",
 )

@@ -12,7 +12,7 @@ from torch import nn
 
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
-from deepslam.frontend.points import check_image, extract_points
+from deepslam.frontend.points import SUBPIXEL, Subpixel, check_image, extract_points
 
 WEIGHTS = Path(__file__).parent / "weights"
 
@@ -29,7 +29,9 @@ class MagicPointConfig:
 VARIANTS = {
     "S": MagicPointConfig((8, 8, 16, 16), 32),
     "L": MagicPointConfig((64, 64, 128, 128), 256),
+    "S-HA": MagicPointConfig((8, 8, 16, 16), 32),  # S trained on real photographs by homographic adaptation
 }
+INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "centroid"}}  # options a variant was trained for
 
 
 class MagicPointNet(nn.Module):
@@ -72,8 +74,8 @@ def _as_tensor(image: np.ndarray) -> torch.Tensor:
 class MagicPoint:
     """The shipped MagicPoint, ready for inference (BatchNorm folded, eval mode).
 
-    ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels), ``top_k`` and ``subpixel`` (parabola
-    fit at each peak) set point extraction.
+    ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels), ``top_k`` and ``subpixel`` ("none",
+    "parabola" fit at each peak, or "centroid" of its 3x3 neighbourhood) set point extraction.
     ``grid_shifts`` 4 averages the heatmaps of the image shifted by 0 and 4 pixels in x and y against
     the 8-pixel cell grid (3-4x the time; 2: the diagonal shift only): detections then move with the
     image more faithfully (the single pass is not shift-equivariant within a cell).
@@ -90,20 +92,28 @@ class MagicPoint:
         border: int = 4,
         top_k: int | None = None,
         grid_shifts: int = 1,
-        subpixel: bool = False,
+        subpixel: Subpixel = "none",
         upsample: int = 1,
     ):
         if grid_shifts not in GRID_SHIFTS:
             raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
         if not isinstance(upsample, int) or not 1 <= upsample <= 4:
             raise ValueError(f"upsample must be an integer from 1 to 4, got {upsample}")
+        if not np.isfinite(threshold) or nms_radius < 0 or border < 0 or (top_k is not None and top_k < 1):
+            raise ValueError(
+                f"the detection threshold must be finite, nms_radius and border at least 0 and top_k at least 1, "
+                f"got {threshold}, {nms_radius}, {border}, {top_k}"
+            )
+        if subpixel not in SUBPIXEL:
+            raise ValueError(f"subpixel must be one of {', '.join(SUBPIXEL)}, got {subpixel!r}")
         self.net = fold_batchnorm(net)
         self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
         self.grid_shifts, self.subpixel, self.upsample = grid_shifts, subpixel, upsample
 
     @classmethod
     def pretrained(cls, variant: str = "S", path: str | Path | None = None, **options) -> "MagicPoint":
-        """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint."""
+        """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint; the
+        variant's ``INFERENCE_DEFAULTS`` apply unless ``options`` say otherwise."""
         if variant not in VARIANTS:
             raise ValueError(f"unknown MagicPoint variant {variant!r}; expected one of {', '.join(VARIANTS)}")
         path = Path(path) if path else WEIGHTS / f"magicpoint_{variant}.pt"
@@ -112,7 +122,7 @@ class MagicPoint:
         config, weights = read_weights(path)
         net = MagicPointNet(MagicPointConfig(**config))
         net.load_state_dict(weights)
-        return cls(net, **options)
+        return cls(net, **{**INFERENCE_DEFAULTS.get(variant, {}), **options})
 
     @torch.inference_mode()
     def cells(self, image: np.ndarray) -> np.ndarray:

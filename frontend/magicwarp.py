@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -22,10 +22,24 @@ class MagicWarpConfig:
     """Encoder widths (``blocks`` VGG blocks per stage, a 2x2 max-pool after each stage), the grid
     the features are pooled to before the fully connected layers, and the hidden FC width."""
 
-    widths: tuple[int, ...] = (64, 64, 128, 128, 128, 128)  # the shipped network's shape
+    widths: tuple[int, ...] = field(
+        default=(64, 64, 128, 128, 128, 128),
+        metadata={
+            "help": "encoder widths, --blocks VGG blocks per 2x2 max-pool (a new run only: a resumed run keeps "
+            "its checkpoint's shape)",
+            "min": 1,
+        },
+    )
     pooled: tuple[int, int] = (3, 5)
-    hidden: int = 512
-    blocks: int = 2
+    hidden: int = field(default=512, metadata={"help": "width of the hidden fully connected layer", "min": 1})
+    blocks: int = field(
+        default=2,
+        metadata={
+            "help": "VGG blocks per stage of the encoder; with --init, weights of fewer blocks per stage are "
+            "deepened: the new blocks start as identities",
+            "min": 1,
+        },
+    )
 
     def __post_init__(self):
         if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:

@@ -5,6 +5,8 @@ Shared by MagicPoint and the classical detectors, so every detector is scored th
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import cv2
 import numpy as np
 
@@ -40,6 +42,26 @@ def nms_points(points: np.ndarray, radius: float) -> np.ndarray:
     return points[~suppressed]
 
 
+Subpixel = Literal["none", "parabola", "centroid"]
+SUBPIXEL: tuple[str, ...] = get_args(Subpixel)
+
+
+def centroid(scores: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Move integer peaks (N, 3) [x, y, score] of a score map (H, W) to the score-weighted mean position
+    of their 3x3 neighbourhood (a soft argmax: exact for a peak spread bilinearly over its neighbours);
+    float32 copy."""
+    h, w = scores.shape
+    x = np.clip(points[:, 0].astype(np.int64), 1, w - 2)
+    y = np.clip(points[:, 1].astype(np.int64), 1, h - 2)
+    dy, dx = np.mgrid[-1:2, -1:2]
+    weights = scores[y[:, None, None] + dy, x[:, None, None] + dx].astype(np.float64)  # (N, 3, 3)
+    total = np.maximum(weights.sum((1, 2)), 1e-12)
+    refined = points.astype(np.float32).copy()
+    refined[:, 0] = x + (weights * dx).sum((1, 2)) / total
+    refined[:, 1] = y + (weights * dy).sum((1, 2)) / total
+    return refined
+
+
 def subpixel(scores: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Move integer peaks (N, 3) [x, y, score] of a score map (H, W) to the vertex of a parabola fitted
     through each peak and its two neighbours along x and along y (at most half a pixel); float32 copy."""
@@ -69,12 +91,12 @@ def extract_points(
     nms_radius: int = 4,
     border: int = 4,
     top_k: int | None = None,
-    refine: bool = False,
+    refine: Subpixel = "none",
 ) -> np.ndarray:
     """Points of a score map (H, W): maxima of their disk of radius r = ``nms_radius`` pixels above
     ``threshold``, at least ``border`` pixels from the edge, then greedy NMS with the same radius (a
-    weaker point within r pixels of a stronger one goes), best ``top_k`` kept; with ``refine``, moved
-    to sub-pixel positions (``subpixel``).
+    weaker point within r pixels of a stronger one goes), best ``top_k`` kept; moved to sub-pixel
+    positions by ``refine``: "parabola" (``subpixel``), "centroid" (``centroid``) or "none".
 
     Returns float32 (N, 3) [x, y, score] sorted by descending score.
     """
@@ -88,4 +110,6 @@ def extract_points(
     y, x = np.nonzero(peaks)
     points = nms_points(np.stack([x, y, scores[y, x]], 1).astype(np.float32), nms_radius)
     points = points[:top_k] if top_k else points
-    return subpixel(scores, points) if refine else points
+    if refine not in SUBPIXEL:
+        raise ValueError(f"sub-pixel refinement must be one of {', '.join(SUBPIXEL)}, got {refine!r}")
+    return {"none": lambda s, p: p, "parabola": subpixel, "centroid": centroid}[refine](scores, points)

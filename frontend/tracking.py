@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -22,7 +23,8 @@ from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.magicwarp import MagicWarp, match, refine
 from deepslam.geometry import in_image, warp_points
 
-FRONTENDS = ("magic", "classical", "oracle")
+Frontend = Literal["magic", "classical", "oracle"]
+FRONTENDS: tuple[str, ...] = get_args(Frontend)
 SUPPORT_PX = 1.5  # a new detection this close to a previous one moved by a candidate homography supports it
 
 
@@ -233,3 +235,75 @@ class OracleTracker(Tracker):
         points = truth.pixels[order] + self.rng.normal(0, self.noise_px, (len(order), 2))
         self.previous = Tracks(points, truth.ids[order].astype(np.int64), np.ones(len(order)))
         return self.previous
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """A front-end and its options; the defaults are the magic front-end's preset: MagicPoint at the
+    evaluation threshold 0.001 with at most 150 points (the oracle's budget), on the image enlarged
+    ``detector_scale`` times with grid shifts (four at scale 1, two above) and parabola sub-pixel peaks,
+    then MagicWarp refined by snapping. Every documented field is a ``deepslam run`` option."""
+
+    frontend: Frontend = field(
+        default="magic",
+        metadata={"help": "magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections"},
+    )
+    detector_scale: Literal[1, 2] = field(
+        default=2,
+        metadata={
+            "help": "MagicPoint detects on the image enlarged this many times (magic front-end); 2 tracks "
+            "photographed textures more accurately, 1 is faster and does better under heavy noise"
+        },
+    )
+    warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
+    refine: bool = field(
+        default=True,
+        metadata={
+            "help": "refine MagicWarp's homography by snapping and a robust fit, and let the no-motion and "
+            "constant-motion guesses, refined the same way, replace it when more detections agree with them"
+        },
+    )
+    carry: bool | None = field(
+        default=None,
+        metadata={
+            "help": "report a track the detector misses where MagicWarp's homography carries it, for up to 20 "
+            "frames (default: only with --method homography, as carried points follow the dominant plane)"
+        },
+    )
+    ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
+    oracle_noise: float = field(
+        default=0.5,
+        metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
+    )
+    budget: int = 150  # points a front-end reports at most
+
+
+def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = True) -> Tracker:
+    """The front-end ``config`` describes, with the shipped networks for "magic"; ``carry_default`` is
+    what ``config.carry`` None means (the caller knows whether poses come from the dominant plane)."""
+    if config.frontend == "magic":
+        from deepslam.frontend.magicwarp import MagicWarp
+
+        detector = MagicPoint.pretrained(
+            "S",
+            threshold=0.001,
+            top_k=config.budget,
+            grid_shifts=4 if config.detector_scale == 1 else 2,
+            subpixel="parabola",
+            upsample=config.detector_scale,
+        )
+        carry = carry_default if config.carry is None else config.carry
+        return MagicTracker(
+            detector,
+            MagicWarp.pretrained(),
+            iterations=config.warp_iterations,
+            ransac=config.ransac,
+            refine=config.refine,
+            carry=carry,
+            budget=config.budget,
+        )
+    if config.frontend == "classical":
+        return ClassicalTracker(budget=config.budget)
+    if config.frontend == "oracle":
+        return OracleTracker(budget=config.budget, noise_px=config.oracle_noise, seed=seed)
+    raise ValueError(f"unknown front-end {config.frontend!r}; expected one of {', '.join(FRONTENDS)}")

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
@@ -11,20 +12,56 @@ from deepslam.sim import trajectories
 from deepslam.sim import world as worlds
 from deepslam.sim.camera import intrinsics
 from deepslam.sim.shapes import check_size
+from deepslam.sim.world import WorldName
 
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    world: str = "plane"
-    trajectory: str = "circle"
-    frames: int = 60
-    size: tuple[int, int] = (120, 160)
+    """A simulated run; every documented field is a ``deepslam run`` option."""
+
+    world: WorldName = field(default="plane", metadata={"help": "simulated world: one textured wall, or a room"})
+    trajectory: trajectories.Kind = field(default="circle", metadata={"help": "camera path"})
+    frames: int = field(default=60, metadata={"help": "number of frames", "min": 2})
+    size: tuple[int, int] = field(
+        default=(120, 160), metadata={"help": "image size, multiples of 8", "metavar": ("H", "W"), "min": 8}
+    )
     fov_deg: float = 70.0
-    speed: float = 0.5  # world units (m) per second
-    fps: float = 10.0
-    noise: float = 0.0  # photometric noise magnitude s (sim.noise), 0 clean, 1 full
-    lighting: float = 0.0  # amplitude of a slow global brightness change (0.3 = +-30%)
-    seed: int = 0
+    speed: float = field(default=0.5, metadata={"help": "camera speed (m/s)", "min": 0})
+    fps: float = field(default=10.0, metadata={"help": "frame rate (frames per second)", "min": 1e-3})
+    noise: float = field(
+        default=0.0, metadata={"help": "photometric noise magnitude s (0 clean, 1 full, 2 random)", "min": 0, "max": 2}
+    )
+    lighting: float = field(
+        default=0.0, metadata={"help": "amplitude of a slow global brightness change (0.3 = 30%%)", "min": 0, "max": 1}
+    )
+    seed: int = field(
+        default=0,
+        metadata={
+            "help": "seed of the world, the image noise and the random trajectory (circle, figure8 and line are "
+            "fixed paths)",
+            "min": 0,
+        },
+    )
+
+    def __post_init__(self):
+        check_size(self.size)
+        problems = []
+        if self.frames < 2:
+            problems.append(f"a run needs at least 2 frames, got {self.frames}")
+        if self.seed < 0:
+            problems.append(f"the seed must be non-negative, got {self.seed}")
+        if not 0 <= self.noise <= 2:
+            problems.append(f"noise magnitude must lie in [0, 2], got {self.noise}")
+        if not (math.isfinite(self.speed) and self.speed >= 0 and math.isfinite(self.fps) and self.fps > 0):
+            problems.append(
+                f"speed must be finite and at least 0, fps finite and positive, got {self.speed}, {self.fps}"
+            )
+        if not (math.isfinite(self.lighting) and 0 <= self.lighting <= 1):
+            problems.append(f"lighting must lie in [0, 1], got {self.lighting}")
+        if not 1 <= self.fov_deg < 180:
+            problems.append(f"the field of view must lie in [1, 180) degrees, got {self.fov_deg}")
+        if problems:
+            raise ValueError("; ".join(problems))
 
 
 @dataclass
@@ -43,13 +80,6 @@ class Scenario:
     """Holds the world and trajectory of a config; iterate it for ``SimFrame``s."""
 
     def __init__(self, config: ScenarioConfig = ScenarioConfig()):
-        check_size(config.size)
-        if config.frames < 2:
-            raise ValueError(f"a run needs at least 2 frames, got {config.frames}")
-        if config.seed < 0:
-            raise ValueError(f"the seed must be non-negative, got {config.seed}")
-        if not 0 <= config.noise <= 2:
-            raise ValueError(f"noise magnitude must lie in [0, 2], got {config.noise}")
         self.config = config
         self.world = worlds.make(config.world, config.seed)
         self.trajectory = trajectories.make(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -10,7 +11,8 @@ import numpy as np
 from deepslam.geometry import path_length
 from deepslam.sim.camera import look_at, pose
 
-KINDS = ("circle", "figure8", "line", "random")
+Kind = Literal["circle", "figure8", "line", "random"]
+KINDS: tuple[str, ...] = get_args(Kind)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ the z-buffer there holds its depth.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -19,7 +20,8 @@ from deepslam.sim import noise as noise_module
 from deepslam.sim.camera import invert, project, transform
 from deepslam.sim.shapes import CATEGORIES, render
 
-WORLDS = ("plane", "room")
+WorldName = Literal["plane", "room"]
+WORLDS: tuple[str, ...] = get_args(WorldName)
 _PHOTOS = (
     "camera",
     "brick",

@@ -2,17 +2,11 @@ import numpy as np
 import pytest
 
 from deepslam.backend import drift, relpose
-from deepslam.backend.evaluation.runs import (
-    make_tracker,
-    matrix_lines,
-    pipeline_matrix,
-    run_frames,
-    simulate,
-    simulated_frames,
-)
+from deepslam.backend.evaluation.runs import run_frames, simulate, simulated_frames
+from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix
 from deepslam.backend.graph import PoseGraph
 from deepslam.backend.odometry import Odometry, OdometryConfig
-from deepslam.frontend.tracking import OracleTracker, Truth
+from deepslam.frontend.tracking import OracleTracker, TrackerConfig, Truth, make_tracker
 from deepslam.geometry import path_length
 from deepslam.sim.camera import intrinsics, invert, pose, project, transform
 from deepslam.sim.scenario import Scenario, ScenarioConfig
@@ -139,8 +133,9 @@ def test_plane_scale_needs_no_ground_truth_steps():
 
 
 def test_pipeline_matrix_averages_its_seeds_and_keeps_each():
-    rows = pipeline_matrix(("plane",), ("oracle",), (0.0,), frames=8, seeds=(0, 3), progress=False)
-    assert len(rows) == 1 and rows[0]["seeds"] == [0, 3]
+    config = SweepConfig(worlds=("plane",), frontends=("oracle",), noise=(0.0,), frames=8, seeds=2)
+    rows = pipeline_matrix(config, progress=False)
+    assert len(rows) == 1 and rows[0]["seeds"] == [0, 1]
     per_seed = rows[0]["ate_se3_per_seed"]
     assert len(per_seed) == 2 and per_seed[0] != per_seed[1]  # different seeds are different runs
     assert rows[0]["ate_se3"] == pytest.approx(np.mean(per_seed))
@@ -150,9 +145,9 @@ def test_pipeline_matrix_averages_its_seeds_and_keeps_each():
 def test_make_tracker_sets_the_oracle_pixel_noise():
     truth = Truth(np.arange(50), np.random.default_rng(0).uniform(0, 100, (50, 2)))
     image = np.zeros((120, 160), np.uint8)
-    exact = make_tracker("oracle", oracle_noise_px=0.0).track(image, truth)
+    exact = make_tracker(TrackerConfig("oracle", oracle_noise=0.0)).track(image, truth)
     np.testing.assert_array_equal(exact.points, truth.pixels[exact.ids])
-    noisy = make_tracker("oracle", oracle_noise_px=2.0).track(image, truth)
+    noisy = make_tracker(TrackerConfig("oracle", oracle_noise=2.0)).track(image, truth)
     error = np.linalg.norm(noisy.points - truth.pixels[noisy.ids], axis=1)
     assert 1.5 < np.median(error) < 3.5  # a 2-D Gaussian of sigma 2 has a median radius of 2.35
 
@@ -163,5 +158,6 @@ def test_magic_tracks_are_carried_only_for_homography_relative_poses():
         ("essential", {}, False),
         ("homography", {"carry": False}, False),
     ]:
-        run = simulate(ScenarioConfig(frames=3), "magic", OdometryConfig(method=method), progress=False, **options)
+        tracker = TrackerConfig("magic", **options)
+        run = simulate(ScenarioConfig(frames=3), tracker, OdometryConfig(method=method), progress=False)
         assert run["odometry"].tracker.carry is carried

@@ -19,11 +19,17 @@ def test_every_command_explains_its_options(capsys):
         ["train", "magicpoint", "--help"],
         ["train", "magicwarp", "--help"],
         ["eval", "realimages", "--help"],
+        ["eval", "pipeline", "--help"],
+        ["train", "magicpoint-ha", "--help"],
+        ["train", "export", "--help"],
     ):
         with pytest.raises(SystemExit) as exit_info:
             main(argv)
         assert exit_info.value.code == 0
-        assert "usage: deepslam" in capsys.readouterr().out
+        out = capsys.readouterr().out
+        assert "usage: deepslam" in out
+        if argv[0] in ("run", "train"):
+            assert "(default: " in out  # --help shows every default
 
 
 def test_contract_flags_of_run():
@@ -42,51 +48,88 @@ def test_run_and_drift_end_to_end(tmp_path, capsys):
     assert (tmp_path / "drift" / "drift.png").exists()
 
 
-def test_bad_input_gets_a_clear_error(tmp_path, capsys):
-    garbage = tmp_path / "g.mcap"
-    garbage.write_bytes(b"hello")
-    assert main(["drift", str(garbage)]) == 2
-    assert "not an MCAP file" in capsys.readouterr().err
-    assert main(["run", "--frames", "1", "--out", str(tmp_path / "r.mcap")]) == 2
-    assert "at least 2 frames" in capsys.readouterr().err
-    assert main(["run", "--size", "100", "160", "--out", str(tmp_path / "r.mcap")]) == 2
-    assert "divisible by 8" in capsys.readouterr().err
+def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, capsys):
     log, folder = str(tmp_path / "r.mcap"), str(tmp_path / "eval")
-    for argv, message in [
+    for argv, message in [  # options checked before any work starts, the option named
+        (["run", "--frames", "1", "--out", log], "argument --frames: must lie in [2, inf], got '1'"),
+        (["run", "--size", "100", "160", "--out", log], "divisible by 8"),
+        (["run", "--fps", "inf", "--out", log], "argument --fps: must be finite, got 'inf'"),
+        (["run", "--lighting", "nan", "--out", log], "argument --lighting: must be finite, got 'nan'"),
+        (["run", "--oracle-noise", "inf", "--out", log], "argument --oracle-noise: must be finite"),
         (["run", "--keyframe-parallax", "-1", "--out", log], "keyframe parallax must be positive"),
-        (["run", "--warp-iterations", "0", "--out", log], "iterations and the budget must be at least 1"),
-        (["eval", "pipeline", "--seeds", "0", "--out", folder], "at least one"),
-        (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
-        (["run", "--seed", "-1", "--out", log], "seed must be non-negative"),
-        (["bench", "warp", "--repeats", "0"], "at least 1 repetition"),
-        (["bench", "pipeline", "--frames", "1"], "a run needs at least 2 frames, got 1"),
-        (["train", "magicwarp", "--batch", "0", "--out", folder], "--batch must be at least 1"),
-        (
-            ["train", "magicpoint", "--iterations", "0", "--ema", "1", "--out", folder],
-            "--iterations must be at least 1, got 0; --ema must lie in [0, 1)",
-        ),
-    ]:
-        assert main(argv) == 2
-        assert message in capsys.readouterr().err
-    for argv, message in [
-        (
-            ["train", "magicwarp", "--max-extra", "1.5", "--out", folder],
-            "argument --max-extra: must be a number in [0, 1], got '1.5'",
-        ),
-        (
-            ["train", "magicwarp", "--clean-a-share", "2", "--out", folder],
-            "argument --clean-a-share: must be a number in [0, 1], got '2'",
-        ),
+        (["run", "--warp-iterations", "0", "--out", log], "argument --warp-iterations: must lie in [1, inf]"),
+        (["run", "--seed", "-1", "--out", log], "argument --seed: must lie in [0, inf]"),
+        (["eval", "pipeline", "--seeds", "0", "--out", folder], "argument --seeds: must lie in [1, inf]"),
+        (["bench", "warp", "--repeats", "0"], "argument --repeats: must lie in [1, inf]"),
+        (["bench", "pipeline", "--frames", "1"], "argument --frames: must lie in [2, inf]"),
+        (["drift", log, "--delta", "-1"], "argument --delta: must lie in [1, inf]"),
+        (["train", "magicwarp", "--batch", "0", "--out", folder], "argument --batch: must lie in [1, inf]"),
+        (["train", "magicwarp", "--lr", "inf", "--out", folder], "argument --lr: must be finite"),
+        (["train", "magicpoint", "--ema", "1", "--out", folder], "argument --ema: must lie in [0, 0.999999]"),
+        (["train", "magicwarp", "--max-extra", "1.5", "--out", folder], "argument --max-extra: must lie in [0, 1]"),
         (
             ["train", "magicpoint", "--clean-share", "half", "--out", folder],
-            "argument --clean-share: must be a number in [0, 1], got 'half'",
+            "argument --clean-share: expected a number",
         ),
+        (["eval", "detector", "--detectors", "Nope", "--out", folder], "unknown or unavailable detectors ['Nope']"),
     ]:
-        with pytest.raises(SystemExit) as exit_info:  # argparse rejects these before any work starts
+        with pytest.raises(SystemExit) as exit_info:
             main(argv)
-        assert exit_info.value.code == 2
-        assert message in capsys.readouterr().err
+        assert exit_info.value.code == 2, argv
+        assert message in capsys.readouterr().err, argv
+    garbage = tmp_path / "g.mcap"
+    garbage.write_bytes(b"hello")
+    for argv, message in [  # runtime errors: one line, exit 1
+        (["drift", str(garbage)], "not an MCAP file"),
+        (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
+    ]:
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1 and "Traceback" not in err, argv
     assert not (tmp_path / "r.mcap").exists() and not (tmp_path / "eval").exists()  # bad input leaves nothing behind
+
+
+def test_cli_defaults_are_the_config_defaults():
+    """Every option that a config dataclass offers has the dataclass's default: one source for each setting."""
+    import dataclasses
+
+    from deepslam.backend.evaluation.sweep import SweepConfig
+    from deepslam.backend.odometry import OdometryConfig
+    from deepslam.frontend.magicwarp import MagicWarpConfig
+    from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.frontend.training import adaptation, magicpoint, magicwarp
+    from deepslam.options import options_of
+    from deepslam.sim.scenario import ScenarioConfig
+
+    parser = build_parser()
+    for argv, configs in [
+        (["run"], (ScenarioConfig, TrackerConfig, OdometryConfig)),
+        (["replay", "x.mcap"], (TrackerConfig, OdometryConfig)),
+        (["eval", "pipeline"], (SweepConfig,)),
+        (["train", "magicpoint"], (magicpoint.TrainConfig,)),
+        (["train", "magicwarp"], (magicwarp.TrainConfig, MagicWarpConfig)),
+        (["train", "magicpoint-ha"], (adaptation.AdaptConfig,)),
+    ]:
+        args = parser.parse_args(argv)
+        for config in configs:
+            defaults = config()
+            names = options_of(config)
+            assert names, config
+            for name in names:
+                value = getattr(args, name)
+                assert (tuple(value) if isinstance(value, list) else value) == getattr(defaults, name), (argv, name)
+            assert {f.name for f in dataclasses.fields(config)} >= set(names)
+
+
+def test_python_m_deepslam_and_version(capsys):
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "deepslam", "--version"], capture_output=True, text=True, check=True)
+    assert out.stdout.startswith("deepslam ")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
 
 
 def test_eval_detector_writes_table_json_and_plots(tmp_path, capsys):

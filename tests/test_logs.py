@@ -15,6 +15,7 @@ from deepslam.backend import drift
 from deepslam.backend.evaluation import analysis
 from deepslam.backend.evaluation.runs import replay, simulate
 from deepslam.backend.odometry import OdometryConfig
+from deepslam.frontend.tracking import TrackerConfig
 from deepslam.logs.frames import pose_matrix, quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.logs.schemas import TOPICS, ros2_name
@@ -29,7 +30,12 @@ def _as_logged(T):
 def oracle_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("logs") / "oracle.mcap"
     result = simulate(
-        ScenarioConfig(frames=25, seed=3), "oracle", OdometryConfig(), path, {"version": "test"}, progress=False
+        ScenarioConfig(frames=25, seed=3),
+        TrackerConfig("oracle"),
+        OdometryConfig(),
+        path,
+        {"version": "test"},
+        progress=False,
     )
     return path, result
 
@@ -133,7 +139,7 @@ def test_truncated_file_reads_up_to_its_last_whole_chunk(oracle_log, tmp_path):
 def _run_until(out: Path, size: int) -> subprocess.Popen:
     """A real `deepslam run` subprocess, returned once its log has grown past ``size`` bytes."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "deepslam.cli", "run", "--frontend", "oracle", "--frames", "400", "--out", str(out)],
+        [sys.executable, "-m", "deepslam", "run", "--frontend", "oracle", "--frames", "400", "--out", str(out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
@@ -161,19 +167,19 @@ def test_killed_run_leaves_every_frame_before_the_last_chunk(tmp_path):
 def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
     original = tmp_path / "classical.mcap"
     config = OdometryConfig()
-    simulate(ScenarioConfig(frames=15, seed=5), "classical", config, original, progress=False)
+    simulate(ScenarioConfig(frames=15, seed=5), TrackerConfig("classical"), config, original, progress=False)
     again = tmp_path / "replayed.mcap"
-    replay(original, "classical", config, again, progress=False)
+    replay(original, TrackerConfig("classical"), config, again, progress=False)
     first, second = list(read_frames(original)), list(read_frames(again))
     assert len(first) == len(second) == 15
     for a, b in zip(first, second, strict=False):
         assert np.array_equal(a.image, b.image)
         np.testing.assert_allclose(a.T_estimate, b.T_estimate, atol=1e-9)
     with pytest.raises(ValueError, match="oracle"):
-        replay(original, "oracle", config, tmp_path / "x.mcap", progress=False)
+        replay(original, TrackerConfig("oracle"), config, tmp_path / "x.mcap", progress=False)
     size = original.stat().st_size
     with pytest.raises(ValueError, match="overwrite"):
-        replay(original, "classical", config, tmp_path / "." / "classical.mcap", progress=False)
+        replay(original, TrackerConfig("classical"), config, tmp_path / "." / "classical.mcap", progress=False)
     assert original.stat().st_size == size and len(list(read_frames(original))) == 15
 
 

@@ -63,9 +63,9 @@ def test_repeatability_by_hand():
 
 def test_repeatability_at_n_takes_the_best_count():
     p1 = np.array([[10.0, 10.0, 0.9], [50.0, 50.0, 0.5]])
-    p2 = np.array([[10.0, 10.0, 0.9], [90.0, 90.0, 0.5]])
-    rep, n = repeatability_at_n([(p1, p2, np.eye(3))], (120, 160), counts=(1, 2))
-    assert rep == 1.0 and n == 1.0
+    p2 = np.array([[10.5, 10.0, 0.9], [90.0, 90.0, 0.5]])
+    rep, n, error = repeatability_at_n([(p1, p2, np.eye(3))], (120, 160), counts=(1, 2))
+    assert rep == 1.0 and n == 1.0 and error == pytest.approx(0.5)  # the repeated points are 0.5 px apart
 
 
 def test_point_extraction_nms_border_top_k_and_subpixel():
@@ -85,9 +85,15 @@ def test_point_extraction_nms_border_top_k_and_subpixel():
     diagonal = np.zeros((40, 48), np.float32)
     diagonal[10, 10], diagonal[14, 13], diagonal[13, 14] = 1.0, 0.8, 0.6  # 5.0 px and 5.0 px away, 1.4 px apart
     assert extract_points(diagonal, 0.1, nms_radius=4, border=0)[:, :2].tolist() == [[10, 10], [13, 14]]
-    refined = extract_points(scores, 0.1, refine=True)
+    refined = extract_points(scores, 0.1, refine="parabola")
     assert np.abs(refined[0, :2] - [20.3, 12.6]).max() < np.abs(points[0, :2] - [20.3, 12.6]).max() / 2
     np.testing.assert_allclose(refined[1, :2], [40, 30], atol=1e-6)  # a symmetric peak stays put
+    bilinear = np.zeros((40, 48), np.float32)
+    bilinear[20, 10:12] = [0.6, 0.2]  # a peak at x = 10.25 spread over two pixels, as a soft label is
+    bilinear[21, 10] = 0.2  # and at y = 20.25
+    np.testing.assert_allclose(extract_points(bilinear, 0.1, refine="centroid")[0, :2], [10.2, 20.2], atol=1e-6)
+    with pytest.raises(ValueError, match="sub-pixel"):
+        extract_points(scores, 0.1, refine="quadratic")
 
 
 def test_jittered_real_image_frames_come_with_their_true_motion():
@@ -95,8 +101,8 @@ def test_jittered_real_image_frames_come_with_their_true_motion():
     frames, homographies = _jittered([image] * 4, np.random.default_rng(0), jitter_px=3.0)
     assert len(homographies) == 3 and not np.allclose(homographies[0], np.eye(3))
     points = [ClassicalDetector("shi").detect(f) for f in frames]
-    true_motion, _ = repeatability_at_n(list(zip(points, points[1:], homographies, strict=False)), image.shape)
-    no_motion, _ = repeatability_at_n(
+    true_motion, *_ = repeatability_at_n(list(zip(points, points[1:], homographies, strict=False)), image.shape)
+    no_motion, *_ = repeatability_at_n(
         [(a, b, np.eye(3)) for a, b in zip(points, points[1:], strict=False)], image.shape
     )
     assert true_motion > 0.8 > no_motion + 0.2

@@ -72,7 +72,7 @@ def test_grid_shifts_make_the_heatmap_move_with_the_image(rng):
 
 def test_upsampled_detections_land_on_the_true_corners_in_input_pixels():
     rng = np.random.default_rng(0)
-    detector = MagicPoint.pretrained("S", upsample=2, subpixel=True)
+    detector = MagicPoint.pretrained("S", upsample=2, subpixel="parabola")
     offsets = []
     for category in ("checkerboards", "quadrilaterals", "triangles") * 5:
         image, corners = shapes.render(category, rng)

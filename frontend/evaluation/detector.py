@@ -6,9 +6,9 @@ from typing import Protocol
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from deepslam.frontend.evaluation.metrics import average_precision, localization_error, match_detections, merge
+from deepslam.progress import progress_bar
 from deepslam.sim import noise
 from deepslam.sim.world import photo
 
@@ -30,7 +30,7 @@ def noisy_set(items: list[Item], seed: int, s: float = 1.0, kind: str = "full") 
 def evaluate_set(detector: Detector, items: list[Item], progress: str | None = None) -> dict:
     """mAP and MLE over the pooled set, and per category: {"map", "mle", "per_category": {...}}."""
     by_category: dict[str, list] = {}
-    for category, image, corners in tqdm(items, desc=progress, disable=progress is None, leave=False):
+    for category, image, corners in progress_bar(items, desc=progress, disable=progress is None, leave=False):
         by_category.setdefault(category, []).append(match_detections(detector.detect(image), corners))
     pooled = merge([r for results in by_category.values() for r in results])
     per_category = {}
@@ -210,6 +210,37 @@ def _jittered(sequence: list[np.ndarray], rng: np.random.Generator, jitter_px: f
     return frames, [b @ np.linalg.inv(a) for a, b in zip(moves, moves[1:], strict=False)]
 
 
+def photo_sequences(
+    images: list[np.ndarray], frames: int, rng: np.random.Generator, noisy: bool, jitter_px: float
+) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:
+    """For each image, ``frames`` frames of a camera under changing light (``sim.noise.relit_sequence``),
+    with the full noise of ``sim.noise`` if ``noisy`` and moved by up to ``jitter_px`` pixels a frame;
+    each sequence with its true homographies (3, 3) from each frame to the next."""
+    sequences = []
+    for image in images:
+        sequence = noise.relit_sequence(image, frames, rng)
+        sequence = [noise.apply(f, rng, 1.0) for f in sequence] if noisy else sequence
+        still = (sequence, [np.eye(3)] * (len(sequence) - 1))
+        sequences.append(_jittered(sequence, rng, jitter_px) if jitter_px > 0 else still)
+    return sequences
+
+
+def sequence_repeatability(
+    detector: Detector, sequences: list[tuple[list[np.ndarray], list[np.ndarray]]], progress: str | None = None
+) -> dict[str, float]:
+    """{"repeatability", "n", "localization_error"}: frame-to-frame repeatability@N (eps = 2 px) over
+    sequences of ``photo_sequences``, the mean detection count N where it peaks and the mean distance
+    (pixels) between repeated points at that N."""
+    from deepslam.frontend.evaluation.metrics import repeatability_at_n
+
+    pairs = []
+    for sequence, homographies in progress_bar(sequences, desc=progress, disable=progress is None, leave=False):
+        points = [detector.detect(f) for f in sequence]
+        pairs += list(zip(points, points[1:], homographies, strict=True))
+    rep, count, error = repeatability_at_n(pairs, sequences[0][0][0].shape)
+    return {"repeatability": rep, "n": count, "localization_error": error}
+
+
 def static_repeatability(
     detectors: dict[str, Detector],
     frames: int = 20,
@@ -220,41 +251,26 @@ def static_repeatability(
     """Frame-to-frame repeatability@N (eps=2) on real photographs seen by a static camera under
     changing light, clean and with the full noise of ``sim.noise``; with ``jitter_px`` > 0 every frame
     is also translated by up to that many pixels (the true homographies are used)."""
-    from deepslam.frontend.evaluation.metrics import repeatability_at_n
-
     result: dict = {}
     for size in sizes:
         for noisy in (False, True):
             rng = np.random.default_rng([seed, size[0], int(noisy)])
-            sequences = []
-            for name in PHOTOS:
-                sequence = noise.relit_sequence(photo(name, size), frames, rng)
-                sequence = [noise.apply(f, rng, 1.0) for f in sequence] if noisy else sequence
-                sequences.append(
-                    _jittered(sequence, rng, jitter_px)
-                    if jitter_px > 0
-                    else (sequence, [np.eye(3)] * (len(sequence) - 1))
-                )
+            sequences = photo_sequences([photo(name, size) for name in PHOTOS], frames, rng, noisy, jitter_px)
             key = f"{size[1]}x{size[0]} {'noisy' if noisy else 'clean'}"
             for name, detector in detectors.items():
-                pairs = []
-                for sequence, homographies in tqdm(sequences, desc=f"{name} {key}", leave=False):
-                    points = [detector.detect(f) for f in sequence]
-                    pairs += list(zip(points, points[1:], homographies, strict=False))
-                rep, count = repeatability_at_n(pairs, size)
-                result.setdefault(name, {})[key] = {"repeatability": rep, "n": count}
+                result.setdefault(name, {})[key] = sequence_repeatability(detector, sequences, f"{name} {key}")
     return result
 
 
 def static_lines(result: dict) -> list[str]:
     """Repeatability@N per detector and condition, with the paper's 30 Static Corners R beside it."""
     keys = list(next(iter(result.values())))
-    lines = [f"{'repeatability@N':<14}" + "".join(f"{k:>22}" for k in keys) + "   paper R (same columns)"]
+    lines = [f"{'repeatability@N (loc. px)':<26}" + "".join(f"{k:>24}" for k in keys) + "   paper R (same columns)"]
     for name, figures in result.items():
         paper = " / ".join(f"{v:.3f}" for v in PAPER_STATIC_R.get(name, ()))
-        lines.append(
-            f"{name:<14}"
-            + "".join(f"{figures[k]['repeatability']:>14.3f} @{figures[k]['n']:>5.0f}  " for k in keys)
-            + f"   {paper}"
-        )
+        cells = [
+            f"{figures[k]['repeatability']:>9.3f} @{figures[k]['n']:>4.0f} ({figures[k]['localization_error']:.2f})"
+            for k in keys
+        ]
+        lines.append(f"{name:<26}" + "".join(f"{c:>24}" for c in cells) + f"   {paper}")
     return lines

@@ -71,23 +71,29 @@ def localization_error(result: DetectionScores) -> float:
     return float(np.nanmean(result.distance[result.correct])) if result.correct.any() else float("nan")
 
 
+def repeated(
+    points_1: np.ndarray, points_2: np.ndarray, H_12: np.ndarray, size: tuple[int, int], eps: float = 2.0
+) -> tuple[float, np.ndarray]:
+    """(repeatability, distances): the share of points, in both images, with a detection of the other
+    image within ``eps`` pixels after warping by the known homography ``H_12`` (only points seen by both
+    views count), and those repeated points' distances (K,) to their nearest detection, in pixels."""
+    p1, p2 = np.asarray(points_1, np.float64)[:, :2], np.asarray(points_2, np.float64)[:, :2]
+    p1_in_2, p2_in_1 = warp_points(p1, H_12), warp_points(p2, np.linalg.inv(H_12))
+    p1_in_2 = p1_in_2[in_image(p1_in_2, size, margin=0.5)]
+    p2 = p2[in_image(p2_in_1, size, margin=0.5)]
+    if len(p1_in_2) == 0 or len(p2) == 0:
+        return 0.0, np.zeros(0)
+    gaps = np.linalg.norm(p1_in_2[:, None] - p2[None], axis=2)
+    nearest = np.concatenate([gaps.min(1), gaps.min(0)])
+    return float((nearest <= eps).sum() / len(nearest)), nearest[nearest <= eps]
+
+
 def repeatability(
     points_1: np.ndarray, points_2: np.ndarray, H_12: np.ndarray, size: tuple[int, int], eps: float = 2.0
 ) -> float:
     """Share of points, in both images, with a detection of the other image within ``eps`` after
     warping by the known homography ``H_12``; only points seen by both views count."""
-
-    def visible(points):
-        return in_image(points, size, margin=0.5)
-
-    p1, p2 = np.asarray(points_1, np.float64)[:, :2], np.asarray(points_2, np.float64)[:, :2]
-    p1_in_2, p2_in_1 = warp_points(p1, H_12), warp_points(p2, np.linalg.inv(H_12))
-    p1, p1_in_2 = p1[visible(p1_in_2)], p1_in_2[visible(p1_in_2)]
-    p2, p2_in_1 = p2[visible(p2_in_1)], p2_in_1[visible(p2_in_1)]
-    if len(p1) == 0 or len(p2) == 0:
-        return 0.0
-    gaps = np.linalg.norm(p1_in_2[:, None] - p2[None], axis=2)
-    return float(((gaps.min(1) <= eps).sum() + (gaps.min(0) <= eps).sum()) / (len(p1) + len(p2)))
+    return repeated(points_1, points_2, H_12, size, eps)[0]
 
 
 def repeatability_at_n(
@@ -95,14 +101,17 @@ def repeatability_at_n(
     size: tuple[int, int],
     counts: tuple[int, ...] = (10, 20, 30, 50, 75, 100, 150, 200, 300),
     eps: float = 2.0,
-) -> tuple[float, float]:
+) -> tuple[float, float, float]:
     """The paper's repeatability@N: mean repeatability over (points_1, points_2, H_12) pairs for the
-    best ``n`` detections of each image, maximised over ``n``. Returns (repeatability, N), N the mean
-    detection count at the maximum. Points must be sorted by descending score."""
-    best = (0.0, 0.0)
+    best ``n`` detections of each image, maximised over ``n``. Returns (repeatability, N, localisation
+    error): N the mean detection count at the maximum, the error the mean distance (pixels) between
+    repeated points there. Points must be sorted by descending score."""
+    best = (0.0, 0.0, float("nan"))
     for n in counts:
-        reps = [repeatability(p1[:n], p2[:n], H, size, eps) for p1, p2, H in pairs]
+        results = [repeated(p1[:n], p2[:n], H, size, eps) for p1, p2, H in pairs]
         mean_count = float(np.mean([(min(n, len(p1)) + min(n, len(p2))) / 2 for p1, p2, _ in pairs]))
-        if np.mean(reps) > best[0]:
-            best = (float(np.mean(reps)), mean_count)
+        rep = float(np.mean([r for r, _ in results]))
+        if rep > best[0]:
+            distances = np.concatenate([d for _, d in results])
+            best = (rep, mean_count, float(distances.mean()) if len(distances) else float("nan"))
     return best

@@ -8,6 +8,7 @@ import numpy as np
 
 from deepslam.frontend.magicwarp import MagicWarp, MagicWarpNet, refine
 from deepslam.geometry import warp_points
+from deepslam.progress import progress_bar
 from deepslam.sim.homography import image_corners
 from deepslam.sim.pointsets import MOTIONS, PointSetPair, make_pair, motion_homography, random_direction
 
@@ -109,7 +110,6 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
     Returns {"breakdown": {density: {extra: {method: {motion: value}}}}, "curves": {motion: {method:
     mean repeatability per magnitude}} (medium density, 20% extra), "grids": {motion: magnitudes}}.
     """
-    from tqdm import tqdm
 
     methods = ["nearest_neighbour", "ransac"] + (
         ["magicwarp", "magicwarp_x2", "magicwarp_refined", "magicwarp_clean_b"] if warp else []
@@ -117,7 +117,7 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
     table: dict = {}
     curves: dict = {}
     jobs = [(d, e, m) for d in DENSITIES for e in EXTRAS for m in GRIDS]
-    for density, extra, motion in tqdm(jobs, desc="breakdown", disable=not progress):
+    for density, extra, motion in progress_bar(jobs, desc="breakdown", disable=not progress):
         grid = GRIDS[motion]
         reps = {method: np.zeros((runs, len(grid))) for method in methods}
         for run in range(runs):

@@ -12,33 +12,53 @@ which is then what validation scores, ``best.pt`` keeps and ``export_weights`` s
 from __future__ import annotations
 
 import json
+import logging
 import pickle
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
-from tqdm import tqdm
 
 from deepslam.frontend.nets import network_config
 from deepslam.frontend.training.surgery import config_of, load_weights
+from deepslam.progress import progress_bar
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class LoopConfig:
     """Options of the training loop itself; each network's ``TrainConfig`` extends it."""
 
-    iterations: int = 1000
-    batch: int = 32
-    lr: float = 1e-3
-    seed: int = 0
-    validate_every: int = 500
-    threads: int = 1
-    ema: float = 0.0  # decay of the weights' moving average per step (0: none; 0.999 ~ the last 1000 steps)
-    init: str = ""  # weights (checkpoint or shipped file) a new run starts from; ignored when resuming
+    iterations: int = field(default=1000, metadata={"help": "total optimisation steps", "min": 1})
+    batch: int = field(default=32, metadata={"help": "examples per step", "min": 1})
+    lr: float = field(default=1e-3, metadata={"help": "Adam learning rate", "min": 1e-12})
+    seed: int = field(default=0, metadata={"help": "seed of the data stream and initialisation", "min": 0})
+    validate_every: int = field(default=500, metadata={"help": "steps between validations/checkpoints", "min": 1})
+    threads: int = field(default=1, metadata={"help": "torch CPU threads", "min": 1})
+    ema: float = field(
+        default=0.0,
+        metadata={
+            "help": "keep a moving average of the weights with this per-step decay (e.g. 0.999); it is what "
+            "validation scores and best.pt / export ship (0: off)",
+            "metavar": "DECAY",
+            "min": 0,
+            "max": 0.999999,
+        },
+    )
+    init: str = field(
+        default="",
+        metadata={
+            "help": "start a new run (no last.pt in --out) from these weights: a checkpoint or shipped file; "
+            "weights of a narrower network (same layers, fewer units) are embedded into the wider one so that "
+            "it starts from the same function",
+            "metavar": "WEIGHTS",
+        },
+    )
 
     def __post_init__(self):
         problems = [
@@ -143,16 +163,16 @@ def train(
             group["lr"] = config.lr
         rng.bit_generator.state = state["rng"]
         step, best, elapsed, history = state["step"], state["best"], state["elapsed"], state["history"]
-        print(f"resuming from {last} at step {step}")
+        log.info(f"resuming from {last} at step {step}")
     else:
         state = None
         if config.init:
             load_weights(model, Path(config.init))
-            print(f"starting from the weights of {config.init}")
+            log.info(f"starting from the weights of {config.init}")
     ema = _moving_average(model, config.ema, state)
     scored = ema.module if ema else model
     figures: dict[str, float] = history[-1] if history else {}
-    bar = tqdm(total=config.iterations, initial=step, unit="it", dynamic_ncols=True)
+    bar = progress_bar(total=config.iterations, initial=step, unit="it")
     started = time.time() - elapsed
     while step < config.iterations:
         model.train()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -17,10 +17,18 @@ from deepslam.sim.shapes import training_stream
 
 @dataclass(frozen=True)
 class TrainConfig(LoopConfig):
-    variant: str = "S"
+    variant: str = field(
+        default="S", metadata={"help": "network size (S-HA: `deepslam train magicpoint-ha`)", "choices": ("S", "L")}
+    )
     iterations: int = 8000
-    validation_per_category: int = 20
-    clean_share: float = 0.0  # share of training images left without photometric noise
+    validation_per_category: int = field(
+        default=20,
+        metadata={"help": "validation images per Synthetic Shapes category (each clean and noisy)", "min": 1},
+    )
+    clean_share: float = field(
+        default=0.0,
+        metadata={"help": "share of training images left without photometric noise", "min": 0, "max": 1},
+    )
 
     def __post_init__(self):
         super().__post_init__()

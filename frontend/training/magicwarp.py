@@ -8,8 +8,9 @@ table at the paper's breakdown magnitudes (``deepslam.frontend.evaluation.warp.v
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 import torch
@@ -21,7 +22,8 @@ from deepslam.frontend.training.loop import LoopConfig, train
 from deepslam.sim.homography import HomographyConfig
 from deepslam.sim.pointclouds import PairConfig, sample_pair
 
-LOSS_WEIGHTINGS = ("matches", "pairs")
+LossWeighting = Literal["matches", "pairs"]
+LOSS_WEIGHTINGS: tuple[str, ...] = get_args(LossWeighting)
 
 
 def warp_loss(
@@ -61,17 +63,66 @@ class TrainConfig(LoopConfig):
     iterations: int = 60000
     batch: int = 64
     lr: float = 3e-4
-    motion_start: float = 0.3  # curriculum: motion scale at step 0 ...
-    motion_ramp: int = 12000  # ... growing linearly to ``motion_max`` over this many steps
-    motion_max: float = 1.0
-    geometry_weights: tuple[float, ...] = (0.2, 0.075, 0.075, 0.15, 0.5)  # in the order of sim.pointclouds.GEOMETRIES
+    motion_start: float = field(default=0.3, metadata={"help": "motion scale of the curriculum at step 0", "min": 0})
+    motion_ramp: int = field(
+        default=12000, metadata={"help": "steps over which motion grows to --motion-max", "min": 0}
+    )
+    motion_max: float = field(default=1.0, metadata={"help": "largest motion scale of the curriculum", "min": 0})
+    geometry_weights: tuple[float, float, float, float, float] = field(
+        default=(0.2, 0.075, 0.075, 0.15, 0.5),
+        metadata={
+            "help": "how often each kind of pair is drawn: point clouds seen by two cameras (plane, sphere, cube, "
+            "mixed scene) or image points moved by a random 2D homography",
+            "metavar": ("PLANE", "SPHERE", "CUBE", "MIXED", "HOMOGRAPHY"),
+            "min": 0,
+        },
+    )
     max_matches: int = 128  # true matches per pair used by the loss
-    loss_weighting: str = "matches"  # how pairs weigh in a batch's loss (LOSS_WEIGHTINGS)
-    cauchy: float = 0.0  # > 0: Cauchy point loss of this scale (normalised units) instead of the squared one
-    homography: tuple[float, float, float, float] = (0.3, np.pi / 4, 0.35, 0.1)  # 2D pairs at motion 1: translation
-    # (share of the image size), rotation (rad), zoom (+-share), corner jitter (share of the image size)
-    max_extra: float = 0.5  # up to this fraction of spurious points added to each image of a pair
-    clean_a_share: float = 0.0  # share of pairs drawn as the breakdown evaluation draws them (clean A)
+    loss_weighting: LossWeighting = field(
+        default="matches",
+        metadata={
+            "help": "how the pairs of a batch weigh in the loss: matches (the paper's sum over true matches: a "
+            "dense pair weighs more) or pairs (each pair's mean error, as in the breakdown evaluation)"
+        },
+    )
+    cauchy: float = field(
+        default=0.0,
+        metadata={
+            "help": "replace each match's squared distance in the loss by the Cauchy loss of this scale, in "
+            "normalised coordinates (0.05: about 4 px across a 160 px width; 0: the paper's squared distance)",
+            "metavar": "SCALE",
+            "min": 0,
+        },
+    )
+    homography: tuple[float, float, float, float] = field(
+        default=(0.3, np.pi / 4, 0.35, 0.1),
+        metadata={
+            "help": "ranges of the 2D homography pairs at full motion: translation and corner jitter as shares of "
+            "the image size, rotation in radians, zoom as +- a share",
+            "metavar": ("TRANSLATION", "ROTATION", "ZOOM", "JITTER"),
+            "min": 0,
+        },
+    )
+    max_extra: float = field(
+        default=0.5,
+        metadata={
+            "help": "each image of a pair gets a random share, up to this one, of its point count in spurious "
+            "random points (the breakdown evaluation adds 0, 20 or 40%% to image B)",
+            "metavar": "SHARE",
+            "min": 0,
+            "max": 1,
+        },
+    )
+    clean_a_share: float = field(
+        default=0.0,
+        metadata={
+            "help": "this share of the pairs is drawn as the breakdown evaluation draws them: image A keeps every "
+            "point, image B every point still in view plus spurious ones (0: dropout and spurious points in both)",
+            "metavar": "SHARE",
+            "min": 0,
+            "max": 1,
+        },
+    )
 
     def __post_init__(self):
         super().__post_init__()

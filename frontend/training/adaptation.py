@@ -1,0 +1,344 @@
+"""Homographic adaptation: MagicPoint for real photographs, labelled by itself (SuperPoint, DeTone et al. 2018).
+
+A round labels random views of real photographs (``sim.photos``, training split) with the current
+detector: it is run on ``warps`` random homographic warps of each view, the heatmaps are warped back
+(masks eroded, so that borders do not count) and averaged, and the peaks of that average, at sub-pixel
+positions, are the labels. A detector is then trained on those views (each warped again and, for a
+share, given the paper's photometric noise) mixed with Synthetic Shapes, so that the paper's table
+holds. Targets are soft: a sub-pixel label spreads over the pixels of its cell bilinearly, so the
+network learns where within a pixel a corner lies (read back by ``extract_points(refine="centroid")``).
+The next round labels with the detector the last one trained.
+
+On disk, ``OUT/roundK/`` holds the round's label shards (``labels/``, reused while their inputs are
+unchanged) and its training checkpoints; every stage resumes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from deepslam.frontend.cells import CELL
+from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointNet, cells_to_heatmap
+from deepslam.frontend.nets import fold_batchnorm, read_weights
+from deepslam.frontend.points import extract_points
+from deepslam.frontend.training.loop import LoopConfig, train
+from deepslam.frontend.training.magicpoint import cell_labels
+from deepslam.geometry import in_image, warp_points
+from deepslam.progress import progress_bar
+from deepslam.sim import noise, photos
+from deepslam.sim.homography import HomographyConfig, sample_homography, warp_image
+from deepslam.sim.shapes import training_stream
+
+log = logging.getLogger(__name__)
+
+SHARD = 200  # labelled views per file on disk
+
+
+@dataclass(frozen=True)
+class AdaptConfig(LoopConfig):
+    """One round's training (``LoopConfig``: ``iterations`` steps per round) and the labelling."""
+
+    iterations: int = 4000
+    lr: float = 2e-4
+    rounds: int = field(default=2, metadata={"help": "rounds of labelling and training", "min": 1})
+    views: int = field(default=2000, metadata={"help": "labelled random views of the photographs per round", "min": 1})
+    warps: int = field(
+        default=64, metadata={"help": "homographic warps per view (the identity included; SuperPoint: 100)", "min": 1}
+    )
+    label_warp: tuple[float, float, float, float] = (0.1, 0.35, 0.2, 0.1)  # translation, rotation, zoom, jitter
+    train_warp: tuple[float, float, float, float] = (0.05, 0.2, 0.15, 0.05)  # each view warped again in training
+    erode: int = 6  # pixels taken off each warped mask's edge before averaging
+    label_threshold: float = field(
+        default=0.0015, metadata={"help": "the smallest averaged corner probability that is a label", "min": 0}
+    )
+    label_top_k: int = 150  # at most this many labels per view
+    synthetic_share: float = field(
+        default=0.375,
+        metadata={"help": "share of every batch drawn from Synthetic Shapes, with its labels", "min": 0, "max": 1},
+    )
+    noisy_share: float = field(
+        default=0.5,
+        metadata={"help": "share of the photographs given the paper's full photometric noise", "min": 0, "max": 1},
+    )
+    photos: tuple[str, ...] = field(
+        default=(),
+        metadata={
+            "help": "folders of photographs to train on beside the built-in samples (split into training and "
+            "validation by sim.photos)",
+            "metavar": "DIR",
+        },
+    )
+    size: tuple[int, int] = (120, 160)
+    validation_views: int = 2  # views per validation photograph, each seen as a jittered sequence
+    init_weights: str = field(default="", repr=False)  # set by ``run``: the detector round 1 labels with
+
+    def __post_init__(self):
+        super().__post_init__()
+        problems = [
+            f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}"
+            for name in ("rounds", "views", "warps", "label_top_k", "validation_views")
+            if getattr(self, name) < 1
+        ]
+        problems += [
+            f"--{name.replace('_', '-')} must lie in [0, 1], got {getattr(self, name)}"
+            for name in ("synthetic_share", "noisy_share")
+            if not 0 <= getattr(self, name) <= 1
+        ]
+        if not (np.isfinite(self.label_threshold) and self.label_threshold >= 0) or self.erode < 0:
+            problems.append("--label-threshold and --erode must be finite and at least 0")
+        if problems:
+            raise ValueError("; ".join(problems))
+
+
+def _homography(ranges: tuple[float, float, float, float]) -> HomographyConfig:
+    translation, rotation, zoom, jitter = ranges
+    return HomographyConfig(translation=translation, rotation=rotation, scale=zoom, perspective=jitter)
+
+
+@torch.inference_mode()
+def adapted_heatmap(net: torch.nn.Module, image: np.ndarray, homographies: np.ndarray, erode: int) -> np.ndarray:
+    """The detector's heatmap (H, W) of ``image`` averaged over its warps by ``homographies`` (K, 3, 3),
+    each warped heatmap brought back into the image and counted only inside its eroded mask."""
+    h, w = image.shape
+    warped = np.stack([warp_image(image, H) for H in homographies])
+    x = torch.from_numpy(warped).float().div_(255.0)[:, None].contiguous(memory_format=torch.channels_last)
+    heatmaps = cells_to_heatmap(torch.softmax(net(x), dim=1)).numpy()
+    kernel = np.ones((2 * erode + 1, 2 * erode + 1), np.uint8) if erode else None
+    total, count = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+    ones = np.ones((h, w), np.uint8)
+    for heat, H in zip(heatmaps, homographies, strict=True):
+        back = np.linalg.inv(H)
+        mask = cv2.warpPerspective(ones, back, (w, h), flags=cv2.INTER_NEAREST)
+        mask = cv2.erode(mask, kernel) if kernel is not None else mask
+        total += cv2.warpPerspective(heat, back, (w, h), flags=cv2.INTER_LINEAR) * mask
+        count += mask
+    return total / np.maximum(count, 1.0)
+
+
+def label_views(net: torch.nn.Module, images: np.ndarray, rng: np.random.Generator, config: AdaptConfig) -> np.ndarray:
+    """Labels (N, top_k, 3) [x, y, score] of views (N, H, W), NaN rows where a view has fewer."""
+    labels = np.full((len(images), config.label_top_k, 3), np.nan, np.float32)
+    for i, image in enumerate(images):
+        homographies = [np.eye(3)] + [
+            sample_homography(rng, image.shape, _homography(config.label_warp)) for _ in range(config.warps - 1)
+        ]
+        heat = adapted_heatmap(net, image, np.stack(homographies), config.erode)
+        points = extract_points(heat, config.label_threshold, 4, 4, config.label_top_k, "centroid")
+        labels[i, : len(points)] = points
+    return labels
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def labelling_key(config: AdaptConfig, detector: Path, training: list[photos.Photo], round_: int) -> dict:
+    """Everything the labels of a round depend on: the labelling detector's weights, the photographs, the
+    options and the seed."""
+    inputs = {"views", "warps", "label_warp", "erode", "label_threshold", "label_top_k", "size", "seed"}
+    options = {k: v for k, v in asdict(config).items() if k in inputs}
+    return {"detector": _file_digest(detector), "photos": [p.name for p in training], "round": round_, **options}
+
+
+class Photographs:
+    """The training photographs, loaded once and shrunk to at most ``max_side`` pixels (random views
+    never need more at 120x160 or 240x320). Every group (``sim.photos``) is drawn equally often, so that
+    a wallpaper shipped at ten resolutions weighs as much as a single photograph."""
+
+    def __init__(self, chosen: list[photos.Photo], max_side: int = 1280):
+        self.groups: dict[str, list[np.ndarray]] = {}
+        for photo in progress_bar(chosen, desc="loading photographs", unit="photo", leave=False):
+            image = photo.load()
+            scale = max_side / max(image.shape)
+            if scale < 1:
+                image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            self.groups.setdefault(photo.group, []).append(image)
+        self.members = list(self.groups.values())
+
+    def views(self, rng: np.random.Generator, count: int, size: tuple[int, int]) -> np.ndarray:
+        """``count`` random views (count, H, W) uint8, each of a random photograph of a random group."""
+        views = []
+        for _ in range(count):
+            group = self.members[int(rng.integers(len(self.members)))]
+            views.append(photos.random_view(group[int(rng.integers(len(group)))], rng, size))
+        return np.stack(views)
+
+
+def labelled_views(
+    folder: Path, net: torch.nn.Module, source: Photographs, key: dict, config: AdaptConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """(views (N, H, W) uint8, labels (N, K, 3)) of one round, labelled shard by shard into ``folder``;
+    shards already there are reused while ``key`` matches, and all are made anew when it does not."""
+    folder.mkdir(parents=True, exist_ok=True)
+    key_file = folder / "key.json"
+    if key_file.exists() and json.loads(key_file.read_text()) != key:
+        log.info(f"{folder}: the labels' inputs changed (detector, photographs or options); labelling anew")
+        for shard in folder.glob("shard_*.npz"):
+            shard.unlink()
+    key_file.write_text(json.dumps(key, indent=1))
+    shards = (config.views + SHARD - 1) // SHARD
+    views, labels = [], []
+    with progress_bar(total=config.views, desc=f"labelling {folder.parent.name}", unit="view") as bar:
+        for index in range(shards):
+            path = folder / f"shard_{index:03d}.npz"
+            count = min(SHARD, config.views - index * SHARD)
+            if not path.exists():
+                rng = np.random.default_rng([config.seed, key["round"], index])
+                images = source.views(rng, count, config.size)
+                tmp = path.with_suffix(".tmp.npz")
+                np.savez_compressed(tmp, views=images, labels=label_views(net, images, rng, config))
+                tmp.replace(path)
+            with np.load(path) as shard:
+                views.append(shard["views"])
+                labels.append(shard["labels"])
+            bar.update(count)
+    return np.concatenate(views), np.concatenate(labels)
+
+
+def soft_targets(points: list[np.ndarray], size: tuple[int, int]) -> np.ndarray:
+    """Soft 65-class cell targets float32 (B, 65, H/8, W/8) of sub-pixel points (N, 2+): each point
+    spreads bilinearly over the up to four pixels around it that lie in its cell (renormalised); a cell
+    keeps its best-scoring point (the first, as points are sorted); empty cells are all dustbin."""
+    h, w = size
+    targets = np.zeros((len(points), CELL * CELL + 1, h // CELL, w // CELL), np.float32)
+    targets[:, CELL * CELL] = 1.0
+    for b, pts in enumerate(points):
+        pts = np.asarray(pts, np.float64).reshape(-1, np.shape(pts)[-1] if np.ndim(pts) > 1 else 2)
+        pts = pts[in_image(pts, size, margin=0.5)]
+        taken = np.zeros((h // CELL, w // CELL), bool)
+        for x, y in pts[:, :2]:
+            cx, cy = int(np.rint(x)) // CELL, int(np.rint(y)) // CELL
+            if taken[cy, cx]:
+                continue
+            taken[cy, cx] = True
+            x0, y0 = int(np.floor(x)), int(np.floor(y))
+            fx, fy = x - x0, y - y0
+            weights = {}
+            for px, py, weight in ((x0, y0, (1 - fx) * (1 - fy)), (x0 + 1, y0, fx * (1 - fy)),
+                                   (x0, y0 + 1, (1 - fx) * fy), (x0 + 1, y0 + 1, fx * fy)):  # fmt: skip
+                if px // CELL == cx and py // CELL == cy and weight > 0:
+                    weights[(py % CELL) * CELL + px % CELL] = weight
+            total = sum(weights.values())
+            targets[b, CELL * CELL, cy, cx] = 0.0
+            for channel, weight in weights.items():
+                targets[b, channel, cy, cx] = weight / total
+    return targets
+
+
+def _one_hot(labels: np.ndarray) -> np.ndarray:
+    """int (B, Hc, Wc) cell classes -> float32 (B, 65, Hc, Wc)."""
+    return np.moveaxis(np.eye(CELL * CELL + 1, dtype=np.float32)[labels], -1, 1)
+
+
+def photo_batch(
+    views: np.ndarray, labels: np.ndarray, rng: np.random.Generator, count: int, config: AdaptConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` labelled views, each warped by a fresh random homography (labels moved with it) and,
+    for a ``noisy_share``, given the full photometric noise: (images (B, H, W), soft targets)."""
+    images, points = [], []
+    for i in rng.integers(len(views), size=count):
+        H = sample_homography(rng, config.size, _homography(config.train_warp))
+        image = warp_image(views[i], H, border_value=-1)
+        kept = labels[i][np.isfinite(labels[i, :, 0])]
+        moved = warp_points(kept, H)
+        images.append(noise.full_noise(image, rng) if rng.random() < config.noisy_share else image)
+        points.append(moved)
+    return np.stack(images), soft_targets(points, config.size)
+
+
+def validation_sequences(config: AdaptConfig, validation: list[photos.Photo]) -> dict[str, list]:
+    """Jittered sequences (up to 2 px a frame) of validation photographs, clean and noisy."""
+    from deepslam.frontend.evaluation.detector import photo_sequences
+
+    rng = np.random.default_rng(config.seed + 2000)
+    images = [
+        photos.random_view(p.load(), rng, config.size) for p in validation for _ in range(config.validation_views)
+    ]
+    return {
+        condition: photo_sequences(images, 8, rng, noisy=condition == "noisy", jitter_px=2.0)
+        for condition in ("clean", "noisy")
+    }
+
+
+def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
+    """All rounds of homographic adaptation into ``out_dir/roundK`` (each resumes); round 1 labels with
+    ``config.init`` (default: the shipped MagicPoint S) and starts training from it. Returns the last round's
+    final validation figures; the best weights of the last round are ``out_dir/round{rounds}/best.pt``."""
+    from deepslam.frontend.evaluation.detector import noisy_set
+    from deepslam.frontend.magicpoint import WEIGHTS
+    from deepslam.sim.shapes import evaluation_set
+
+    parts = photos.split(tuple(config.photos))
+    if not parts["training"] or not parts["validation"]:
+        raise ValueError("homographic adaptation needs photographs for training and for validation; add --photos DIR")
+    log.info(f"photographs: {len(parts['training'])} for training, {len(parts['validation'])} for validation")
+    source = Photographs(parts["training"])
+    sequences = validation_sequences(config, parts["validation"])
+    shapes_clean = evaluation_set(10, seed=config.seed + 1000, size=config.size)
+    shapes_noisy = noisy_set(shapes_clean, seed=config.seed + 1000)
+    detector_weights = Path(config.init) if config.init else WEIGHTS / "magicpoint_S.pt"
+    figures: dict = {}
+    for round_ in range(1, config.rounds + 1):
+        folder = out_dir / f"round{round_}"
+        net = MagicPointNet(VARIANTS["S-HA"])
+        net.load_state_dict(read_weights(detector_weights)[1])
+        key = labelling_key(config, detector_weights, parts["training"], round_)
+        trained_on = folder / "labels" / "key.json"
+        if (folder / "last.pt").exists() and trained_on.exists() and json.loads(trained_on.read_text()) != key:
+            raise ValueError(
+                f"{folder} was trained on labels of another detector, photographs or options; train into another --out"
+            )
+        views, labels = labelled_views(folder / "labels", fold_batchnorm(net), source, key, config)
+        round_config = _round_config(config, round_, detector_weights)
+        figures = _train_round(net, folder, views, labels, round_config, sequences, (shapes_clean, shapes_noisy))
+        detector_weights = folder / "best.pt"
+    return figures
+
+
+def _round_config(config: AdaptConfig, round_: int, weights: Path) -> AdaptConfig:
+    """A round's training options: its own data stream, starting from the weights that labelled it."""
+    return replace(config, init="", init_weights=str(weights), seed=config.seed + 1000 * (round_ - 1))
+
+
+def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
+    from deepslam.frontend.evaluation.detector import SHAPES_EXTRACTION, evaluate_set, sequence_repeatability
+
+    synthetic = round(config.batch * config.synthetic_share)
+    stream = None
+
+    def step_fn(step: int, rng: np.random.Generator) -> dict:
+        nonlocal stream
+        stream = stream or training_stream(rng, config.size, clean_share=0.25)
+        images, targets = photo_batch(views, labels, rng, config.batch - synthetic, config)
+        if synthetic:
+            shapes_images, corners = zip(*(next(stream) for _ in range(synthetic)), strict=True)
+            images = np.concatenate([images, np.stack(shapes_images)])
+            targets = np.concatenate([targets, _one_hot(cell_labels(list(corners), config.size, rng))])
+        x = torch.from_numpy(images).float().div_(255.0)[:, None]
+        log_p = torch.log_softmax(net(x), dim=1)
+        return {"loss": -(torch.from_numpy(targets) * log_p).sum(1).mean()}
+
+    def validate(model: MagicPointNet) -> dict:
+        detector = MagicPoint(model, threshold=0.001, subpixel="centroid")
+        real = {c: sequence_repeatability(detector, s) for c, s in sequences.items()}
+        shapes_detector = MagicPoint(model, **SHAPES_EXTRACTION)
+        clean, noisy = (evaluate_set(shapes_detector, items)["map"] for items in shapes)
+        figures = {f"rep_{c}": r["repeatability"] for c, r in real.items()}
+        figures |= {f"loc_{c}": r["localization_error"] for c, r in real.items()}
+        figures |= {"map_clean": clean, "map_noisy": noisy}
+        figures["score"] = (figures["rep_clean"] + figures["rep_noisy"] + clean + noisy) / 4
+        return figures
+
+    if not (folder / "last.pt").exists():
+        # start the round from the detector that labelled it
+        state = torch.load(config.init_weights, map_location="cpu", weights_only=True)
+        net.load_state_dict(state.get("ema", state["model"]))
+    return train(net, config, folder, step_fn, validate, "score")
