@@ -118,7 +118,6 @@ class Odometry:
         if config.scale == "plane" and not config.plane_distance:
             raise ValueError("scale 'plane' needs the first camera's distance to the dominant plane")
         self.tracker, self.config = tracker, config
-        cv2.setRNGSeed(0)  # OpenCV's RANSAC draws from a global generator: same input, same output
         self.graph: PoseGraph | None = None
         self.history: list[tuple[InputFrame, Tracks]] = []
         self.plane_distance = config.plane_distance

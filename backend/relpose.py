@@ -19,8 +19,14 @@ import numpy as np
 
 Method = Literal["auto", "homography", "essential", "pycolmap"]
 METHODS: tuple[str, ...] = get_args(Method)
-MIN_MATCHES = 8
-STATIC_FLOW_PX = 0.3
+MIN_MATCHES = 8  # fewer matches than this: no relative pose
+STATIC_FLOW_PX = 0.3  # a median flow below this (px): no motion
+MIN_INLIER_RATIO = 0.3  # a model that explains a smaller share of the matches is not trusted
+MIN_SPREAD_PX = 2.0  # matched points whose second principal spread is below this (px) are collinear
+ROTATION_ONLY_PX = 0.5  # E: if K R K^-1 alone maps p1 onto p2 this closely (median px), translation is unobservable
+CHI2_1DOF_95 = 3.84  # chi-square 95% quantiles: one degree of freedom (point-to-line) ...
+CHI2_2DOF_95 = 5.99  # ... and two (point-to-point); ORB-SLAM's model-selection thresholds
+HOMOGRAPHY_RATIO = 0.45  # ORB-SLAM: the homography wins when R_H = S_H / (S_H + S_F) is above this
 
 
 @dataclass
@@ -61,26 +67,26 @@ def _normalised(points: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def _score_homography(H: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
-    """ORB-SLAM's S_H: symmetric transfer error with chi-square threshold 5.99."""
+    """ORB-SLAM's S_H: symmetric transfer error with chi-square threshold ``CHI2_2DOF_95``."""
 
     def transfer(a, b, M):
         moved = cv2.perspectiveTransform(a.reshape(-1, 1, 2), M).reshape(-1, 2)
         return np.sum((moved - b) ** 2, 1) / sigma**2
 
     e12, e21 = transfer(p1, p2, H), transfer(p2, p1, np.linalg.inv(H))
-    score = np.where(e12 < 5.99, 5.99 - e12, 0) + np.where(e21 < 5.99, 5.99 - e21, 0)
-    return float(score.sum()), (e12 < 5.99) & (e21 < 5.99)
+    score = np.where(e12 < CHI2_2DOF_95, CHI2_2DOF_95 - e12, 0) + np.where(e21 < CHI2_2DOF_95, CHI2_2DOF_95 - e21, 0)
+    return float(score.sum()), (e12 < CHI2_2DOF_95) & (e21 < CHI2_2DOF_95)
 
 
 def _score_fundamental(F: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
-    """ORB-SLAM's S_F: distances to epipolar lines, threshold 3.84, score offset 5.99."""
+    """ORB-SLAM's S_F: distances to epipolar lines, threshold ``CHI2_1DOF_95``, score offset ``CHI2_2DOF_95``."""
     h1, h2 = np.c_[p1, np.ones(len(p1))], np.c_[p2, np.ones(len(p2))]
     l2, l1 = h1 @ F.T, h2 @ F
     num = np.sum(h2 * l2, 1) ** 2
     e2 = num / (l2[:, 0] ** 2 + l2[:, 1] ** 2 + 1e-12) / sigma**2
     e1 = num / (l1[:, 0] ** 2 + l1[:, 1] ** 2 + 1e-12) / sigma**2
-    score = np.where(e2 < 3.84, 5.99 - e2, 0) + np.where(e1 < 3.84, 5.99 - e1, 0)
-    return float(score.sum()), (e1 < 3.84) & (e2 < 3.84)
+    score = np.where(e2 < CHI2_1DOF_95, CHI2_2DOF_95 - e2, 0) + np.where(e1 < CHI2_1DOF_95, CHI2_2DOF_95 - e1, 0)
+    return float(score.sum()), (e1 < CHI2_1DOF_95) & (e2 < CHI2_1DOF_95)
 
 
 def homography_pose(
@@ -143,8 +149,11 @@ def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: flo
     Scenes dominated by a plane, seen over a short baseline, make E nearly degenerate: a robust fit can
     lock onto the plane and explain only its points. So E is fitted by MAGSAC, RANSAC and LMedS and the
     solution whose pose explains the most matches (Sampson distance below ``threshold`` pixels, in
-    front of both cameras) is kept.
+    front of both cameras) is kept. A camera that only turned gets ``rotation_only_pose``.
     """
+    rotation = rotation_only_pose(p1, p2, K)
+    if rotation is not None:
+        return rotation
     best: RelativePose | None = None
     for method in (cv2.USAC_MAGSAC, cv2.RANSAC, cv2.LMEDS):
         E, _ = cv2.findEssentialMat(p1, p2, K, method, 0.999, 1.0)
@@ -160,6 +169,24 @@ def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: flo
     if best.inliers.sum() < MIN_MATCHES:
         return _failed(len(p1), f"only {best.inliers.sum()} points passed the cheirality check")
     return best
+
+
+def rotation_only_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> RelativePose | None:
+    """The pose of a camera that only turned, if a rotation explains the matches: the rotation nearest
+    to K^-1 H K of a robust homography H, accepted when K R K^-1 maps p1 onto p2 within
+    ``ROTATION_ONLY_PX`` (median). Then E is undefined and its translation would be noise; None otherwise."""
+    H, mask = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
+    if H is None:
+        return None
+    M = np.linalg.inv(K) @ H @ K
+    U, _, Vt = np.linalg.svd(M / np.cbrt(np.linalg.det(M)))
+    R_21 = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    moved = cv2.perspectiveTransform(p1.reshape(-1, 1, 2), K @ R_21 @ np.linalg.inv(K)).reshape(-1, 2)
+    if np.median(np.linalg.norm(moved - p2, axis=1)) >= ROTATION_ONLY_PX:
+        return None
+    pose = RelativePose(_between(R_21, np.zeros(3)), "essential", mask.ravel().astype(bool), rotation_only=True)
+    pose.reason = "pure rotation: the translation is unobservable"
+    return pose
 
 
 def pycolmap_pose(
@@ -211,22 +238,46 @@ def estimate(
 ) -> RelativePose:
     """Relative pose of camera 2 in camera 1 from matched pixels p1, p2 (N, 2).
 
-    Degenerate cases never raise: fewer than ``MIN_MATCHES`` matches gives model "failed"; a median
-    flow below ``STATIC_FLOW_PX`` gives "static" (identity); pure rotation is flagged ``rotation_only``.
+    Degenerate cases never raise, they give model "failed" with a ``reason``: a singular K, non-finite
+    points, fewer than ``MIN_MATCHES`` distinct matches, collinear points (``MIN_SPREAD_PX``), or a model
+    that explains less than ``MIN_INLIER_RATIO`` of the matches. A median flow below ``STATIC_FLOW_PX``
+    gives "static" (identity); pure rotation is flagged ``rotation_only`` (no translation).
     """
     if method not in METHODS:
         raise ValueError(f"unknown relative pose method {method!r}; expected one of {', '.join(METHODS)}")
     p1, p2 = np.asarray(p1, np.float64).reshape(-1, 2), np.asarray(p2, np.float64).reshape(-1, 2)
     if len(p1) != len(p2):
         raise ValueError(f"p1 and p2 must have the same length, got {len(p1)} and {len(p2)}")
-    if len(p1) < MIN_MATCHES:
-        return _failed(len(p1), f"{len(p1)} matches, at least {MIN_MATCHES} needed")
+    problem = _degenerate(p1, p2, K)
+    if problem:
+        return _failed(len(p1), problem)
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < STATIC_FLOW_PX:
         return RelativePose(np.eye(4), "static", np.ones(len(p1), bool), reason="no motion")
     try:
-        return _estimate(p1, p2, K, method, size, previous_t, sigma)
+        pose = _estimate(p1, p2, K, method, size, previous_t, sigma)
     except cv2.error as error:  # USAC asserts on some degenerate samples instead of failing softly
         return _failed(len(p1), f"OpenCV could not fit a model: {str(error).strip().splitlines()[-1]}")
+    if pose.ok and pose.inlier_ratio < MIN_INLIER_RATIO:
+        return _failed(len(p1), f"the {pose.model} explains {pose.inlier_ratio:.0%} of the matches, "
+                                f"below {MIN_INLIER_RATIO:.0%}")  # fmt: skip
+    return pose
+
+
+def _degenerate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> str:
+    """Why no relative pose can come from these matches and K ("" if one can)."""
+    K = np.asarray(K, np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0 or abs(np.linalg.det(K)) < 1e-12:
+        return "the camera matrix K is singular or not finite"
+    if not (np.all(np.isfinite(p1)) and np.all(np.isfinite(p2))):
+        return "the matches hold non-finite coordinates"
+    distinct = min(len(np.unique(np.round(p, 3), axis=0)) for p in (p1, p2))
+    if distinct < MIN_MATCHES:
+        return f"{distinct} distinct matched points, at least {MIN_MATCHES} needed"
+    for points in (p1, p2):
+        spread = np.linalg.svd(points - points.mean(0), compute_uv=False) / np.sqrt(len(points))
+        if spread[1] < MIN_SPREAD_PX:
+            return "the matched points are (nearly) collinear"
+    return ""
 
 
 def _estimate(p1, p2, K, method, size, previous_t, sigma) -> RelativePose:
@@ -248,7 +299,7 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma) -> RelativePose:
 
 def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:
     """ORB-SLAM's choice between a homography and a fundamental matrix: "homography" when
-    R_H = S_H / (S_H + S_F) > 0.45. Returns (model, H or None, H inlier mask (N,)).
+    R_H = S_H / (S_H + S_F) > ``HOMOGRAPHY_RATIO``. Returns (model, H or None, H inlier mask (N,)).
 
     Between frames with little parallax both models fit and R_H does not discriminate: call it on
     the widest baseline at hand (the odometry uses its keyframe pairs)."""
@@ -259,4 +310,4 @@ def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[st
     score_h, inliers_h = _score_homography(H, p1, p2, sigma)
     score_f = _score_fundamental(F[:3], p1, p2, sigma)[0] if F is not None and F.shape[0] >= 3 else 0.0
     ratio = score_h / max(score_h + score_f, 1e-12)
-    return ("homography" if ratio > 0.45 else "essential"), H, inliers_h
+    return ("homography" if ratio > HOMOGRAPHY_RATIO else "essential"), H, inliers_h

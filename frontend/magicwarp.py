@@ -12,9 +12,10 @@ from torch import nn
 
 from deepslam.frontend.cells import CELL, points_to_cells_batch
 from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
-from deepslam.geometry import warp_points
+from deepslam.geometry import in_image, warp_points
 
 WEIGHTS = Path(__file__).parent / "weights"
+MIN_POINTS = 4  # a homography needs four points; fewer in either image and MagicWarp declines
 
 
 @dataclass(frozen=True)
@@ -132,11 +133,22 @@ class MagicWarp:
         """Homography (3, 3) float64 mapping pixel points of image a to image b, ``H[2, 2] == 1``.
 
         With ``iterations`` > 1 it warps ``points_a`` by the estimate so far, estimates again and
-        composes (the paper's H = H2 H1 applied to a).
+        composes (the paper's H = H2 H1 applied to a). ValueError for fewer than ``MIN_POINTS`` points in
+        either image, non-finite coordinates or points outside the image: no homography is invented.
         """
         if iterations < 1:
             raise ValueError(f"iterations must be at least 1, got {iterations}")
         points_a, points_b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
+        for name, points in (("points_a", points_a), ("points_b", points_b)):
+            if not np.all(np.isfinite(points)):
+                raise ValueError(f"{name} holds non-finite coordinates")
+            outside = int((~in_image(points, image_size)).sum())
+            if outside:
+                raise ValueError(f"{name}: {outside} points lie outside the {image_size[0]}x{image_size[1]} image")
+        if min(len(points_a), len(points_b)) < MIN_POINTS:
+            raise ValueError(
+                f"MagicWarp needs at least {MIN_POINTS} points in each image, got {len(points_a)} and {len(points_b)}"
+            )
         H = np.eye(3)
         for _ in range(iterations):
             H = self.estimate_batch([(warp_points(points_a, H), points_b)], image_size)[0] @ H

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from deepslam.frontend.magicpoint import MagicPoint
-from deepslam.frontend.magicwarp import MagicWarp, match, refine
+from deepslam.frontend.magicwarp import MIN_POINTS, MagicWarp, match, refine
 from deepslam.geometry import in_image, warp_points
 
 Frontend = Literal["magic", "classical", "oracle"]
@@ -125,11 +125,14 @@ class MagicTracker(Tracker):
         """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: MagicWarp's
         estimate, the previous frame's H (constant motion) and the identity (no motion) are each refined,
         and the one most detections snap to within ``SUPPORT_PX`` pixels wins (MagicWarp on ties); without,
-        MagicWarp's estimate as it is."""
-        H = self.warp.estimate(self.detections, points, image_shape, self.iterations)
+        MagicWarp's estimate as it is. With fewer than ``MIN_POINTS`` points in either frame MagicWarp has
+        nothing to go on: the previous H and the identity compete alone."""
+        enough = min(len(self.detections), len(points)) >= MIN_POINTS
+        guesses = [self.warp.estimate(self.detections, points, image_shape, self.iterations)] if enough else []
         if not self.refine:
-            return H
-        candidates = [refine(self.detections, points, guess) for guess in (H, self.last_homography, np.eye(3))]
+            return guesses[0] if guesses else self.last_homography
+        guesses += [self.last_homography, np.eye(3)]
+        candidates = [refine(self.detections, points, guess) for guess in guesses]
         support = [len(match(self.detections, points, candidate, SUPPORT_PX)) for candidate in candidates]
         return candidates[int(np.argmax(support))]
 

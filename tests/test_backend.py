@@ -23,9 +23,13 @@ def _views(rng, planar: bool, T_c1_c2=T_TRUE, n=150, noise=0.2):
     return p1 + rng.normal(0, noise, p1.shape), p2 + rng.normal(0, noise, p2.shape)
 
 
-def _errors(T, T_true):
+def _rotation_error_deg(T, T_true):
     R = T[:3, :3].T @ T_true[:3, :3]
-    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+    return np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+
+
+def _errors(T, T_true):
+    angle = _rotation_error_deg(T, T_true)
     t, t_true = T[:3, 3] / np.linalg.norm(T[:3, 3]), T_true[:3, 3] / np.linalg.norm(T_true[:3, 3])
     return angle, np.degrees(np.arccos(np.clip(t @ t_true, -1, 1)))
 
@@ -61,12 +65,24 @@ def test_degenerate_cases_do_not_crash(rng):
     assert relpose.estimate(p1, p1 + 0.01, K).model == "static"
     rotation_only = pose(np.array([0.0, 0.05, 0.0]), np.zeros(3))
     q1, q2 = _views(rng, True, rotation_only, noise=0.0)
-    result = relpose.estimate(q1, q2, K, "homography")
-    assert (
-        result.rotation_only and _errors(result.T_c1_c2, rotation_only)[0] < 0.1
-        if result.T_c1_c2[:3, 3].any()
-        else True
-    )
+    for method in ("homography", "essential"):  # a pure rotation: no translation is invented
+        result = relpose.estimate(q1, q2, K, method)
+        assert result.ok and result.rotation_only, method
+        assert _rotation_error_deg(result.T_c1_c2, rotation_only) < 0.1 and not result.T_c1_c2[:3, 3].any(), method
+    line = np.c_[np.linspace(10, 150, 40), np.linspace(20, 100, 40)]
+    singular = K.copy()
+    singular[1] = 0
+    random = rng.uniform([0, 0], [160, 120], (100, 2))
+    for a, b, camera, reason in [
+        (np.repeat(p1[:1], 100, 0), np.repeat(p2[:1], 100, 0), K, "distinct"),  # 100 copies of one match
+        (line, line + [3.0, 1.0], K, "collinear"),
+        (p1, p2, singular, "singular"),
+        (np.where(np.arange(len(p1))[:, None] == 3, np.nan, p1), p2, K, "non-finite"),
+        (random, rng.uniform([0, 0], [160, 120], (100, 2)), K, "explains"),  # random matches
+    ]:
+        for method in ("homography", "essential", "auto"):
+            result = relpose.estimate(a, b, camera, method)
+            assert not result.ok and reason in result.reason, (reason, method, result.reason)
     with pytest.raises(ValueError, match="method"):
         relpose.estimate(p1, p2, K, "magic")
     with pytest.raises(ValueError, match="same length"):

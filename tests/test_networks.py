@@ -155,7 +155,7 @@ def test_cauchy_warp_loss_matches_the_squared_one_for_small_errors_only():
 def test_magicwarp_api_and_iterations(rng):
     warp = MagicWarp.pretrained()
     assert warp.net.config == MagicWarpConfig()  # training with no shape options trains what ships
-    a = rng.uniform([0, 0], [159, 119], (40, 2))
+    a = rng.uniform([0, 0], [155, 119], (40, 2))
     b = a + [4.0, 0.0]
     H1 = warp.estimate(a, b, (120, 160))
     H2 = warp.estimate(a, b, (120, 160), iterations=2)
@@ -165,6 +165,14 @@ def test_magicwarp_api_and_iterations(rng):
         warp.estimate(a, b, iterations=0)
     with pytest.raises(ValueError, match="points_a"):
         warp.estimate(np.zeros(5), b)
+    for bad_a, bad_b, message in [  # degenerate input is declined, not answered with a confident homography
+        (a[:0], b, "at least 4 points"),
+        (a, b[:3], "at least 4 points"),
+        (np.where(np.arange(40)[:, None] == 0, np.nan, a), b, "non-finite"),
+        (a, b + [100.0, 0.0], "outside the 120x160 image"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            warp.estimate(bad_a, bad_b, (120, 160))
 
 
 def test_normalizer_maps_pixel_centres_to_unit_square():
