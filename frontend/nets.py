@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import copy
+import pickle
+import struct
+import zipfile
 from pathlib import Path
 
 import torch
@@ -49,8 +52,28 @@ def network_config(state: dict) -> dict:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()}
 
 
+def load_checkpoint(path: str | Path, needs: tuple[str, ...] = ("model", "config")) -> dict:
+    """A weights file or training checkpoint as a dict, read as tensors and plain data only: a file that
+    would run code when unpickled is refused, and so is one without the keys ``needs`` (ValueError)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no weights or checkpoint file at {path}")
+    if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
+        raise ValueError(f"{path} is not a deepslam weights file or checkpoint (not a torch archive)")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, KeyError, struct.error) as error:
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ValueError(f"{path} is not a deepslam weights file or checkpoint, or holds more than tensors and "
+                         f"plain data; nothing in it was run ({reason})") from None  # fmt: skip
+    missing = set(needs) - set(state if isinstance(state, dict) else ())
+    if missing:
+        raise ValueError(f"{path} is not a deepslam weights file or checkpoint (no {', '.join(sorted(missing))})")
+    return state
+
+
 def read_weights(path: Path) -> tuple[dict, dict]:
     """(network config, state dict) of shipped weights or a training checkpoint; a checkpoint's moving
     average of the weights (``--ema``) when it has one, as that is what it was validated on."""
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = load_checkpoint(path)
     return network_config(state), state.get("ema", state["model"])

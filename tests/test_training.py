@@ -1,6 +1,8 @@
 """Smoke runs of a few iterations: the training loops run, checkpoint and resume."""
 
 import json
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,8 +31,55 @@ def test_magicpoint_training_runs_and_resumes(tmp_path):
     detector = MagicPoint.pretrained("S", path=tmp_path / "weights.pt")  # loads like the shipped weights
     assert detector.heatmap(np.zeros((32, 32), np.uint8)).shape == (32, 32)
     (tmp_path / "junk.pt").write_text("junk")
-    with pytest.raises(ValueError, match="not a torch checkpoint"):
+    with pytest.raises(ValueError, match="not a deepslam weights file or checkpoint"):
         export_weights(tmp_path / "junk.pt", tmp_path / "x.pt")
+    size = (tmp_path / "last.pt").stat().st_size
+    with pytest.raises(ValueError, match="onto itself"):
+        export_weights(tmp_path / "last.pt", tmp_path / "." / "last.pt")
+    assert (tmp_path / "last.pt").stat().st_size == size
+
+
+class _RunsCode:
+    """An object whose unpickling would run a command: what a crafted weights file carries."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_a_crafted_weights_file_is_refused_and_runs_nothing(tmp_path):
+    from deepslam.frontend import MagicWarp
+    from deepslam.frontend.training.surgery import load_weights
+
+    marker = tmp_path / "ran"
+    crafted = tmp_path / "crafted.pt"
+    net = MagicPoint.pretrained("S").net
+    torch.save({"model": net.state_dict(), "config": {}, "step": 1, "payload": _RunsCode(marker)}, crafted)
+    for load in (
+        lambda: MagicPoint.pretrained("S", path=crafted),
+        lambda: MagicWarp.pretrained(crafted),
+        lambda: export_weights(crafted, tmp_path / "out.pt"),
+        lambda: load_weights(train_magicpoint.MagicPointNet(), crafted),
+    ):
+        with pytest.raises(ValueError, match="holds more than tensors and plain data"):
+            load()
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "last.pt").write_bytes(crafted.read_bytes())  # the automatic resume reads it too
+    with pytest.raises(ValueError, match="holds more than tensors and plain data"):
+        train_magicpoint.run(tmp_path / "run", train_magicpoint.TrainConfig(iterations=1, batch=2))
+    assert not marker.exists()
+
+
+def test_a_diverging_run_stops_with_its_last_good_checkpoint(tmp_path):
+    config = train_magicpoint.TrainConfig(iterations=4, batch=2, validate_every=2, validation_per_category=1)
+    train_magicpoint.run(tmp_path, replace(config, iterations=2))
+    good = torch.load(tmp_path / "last.pt", weights_only=True)["model"]
+    with pytest.raises(RuntimeError, match="diverged"):
+        train_magicpoint.run(tmp_path, replace(config, lr=1e30))
+    kept = torch.load(tmp_path / "last.pt", weights_only=True)["model"]
+    assert all(torch.equal(good[k], kept[k]) for k in good)
 
 
 def test_magicwarp_training_runs_and_resumes(tmp_path):

@@ -27,7 +27,7 @@ import torch
 
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointNet, cells_to_heatmap
-from deepslam.frontend.nets import fold_batchnorm, read_weights
+from deepslam.frontend.nets import fold_batchnorm, load_checkpoint, read_weights
 from deepslam.frontend.points import extract_points
 from deepslam.frontend.training.loop import LoopConfig, train
 from deepslam.frontend.training.magicpoint import cell_labels
@@ -339,6 +339,6 @@ def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
 
     if not (folder / "last.pt").exists():
         # start the round from the detector that labelled it
-        state = torch.load(config.init_weights, map_location="cpu", weights_only=True)
+        state = load_checkpoint(config.init_weights)
         net.load_state_dict(state.get("ema", state["model"]))
     return train(net, config, folder, step_fn, validate, "score")

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import pickle
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -23,7 +22,7 @@ import numpy as np
 import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from deepslam.frontend.nets import network_config
+from deepslam.frontend.nets import load_checkpoint, network_config
 from deepslam.frontend.training.surgery import config_of, load_weights
 from deepslam.progress import progress_bar
 
@@ -104,18 +103,16 @@ def save_checkpoint(
 def export_weights(checkpoint: Path, out: Path) -> dict:
     """Write the inference part of a training checkpoint (model, configs, step; no optimiser or
     generator state) to ``out``, the form shipped in ``frontend/weights``; returns what was kept."""
-    try:
-        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    except (pickle.UnpicklingError, RuntimeError, EOFError) as error:
-        raise ValueError(f"{checkpoint} is not a torch checkpoint ({error})") from None
-    missing = {"model", "config", "step"} - set(state if isinstance(state, dict) else {})
-    if missing:
-        raise ValueError(f"{checkpoint} is not a training checkpoint (no {', '.join(sorted(missing))})")
+    if Path(out).exists() and Path(out).samefile(checkpoint):
+        raise ValueError(f"exporting {checkpoint} onto itself would destroy the checkpoint; choose another OUT")
+    state = load_checkpoint(checkpoint, needs=("model", "config", "step"))
     kept = {key: state[key] for key in ("model", "config", "step", "train_config") if key in state}
     if "ema" in state:
         kept["model"] = state["ema"]
     out.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(kept, out)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.save(kept, tmp)
+    tmp.replace(out)
     return kept
 
 
@@ -151,7 +148,7 @@ def train(
     step, best, elapsed, history = 0, -np.inf, 0.0, []
     last = out_dir / "last.pt"
     if last.exists():
-        state = torch.load(last, map_location="cpu", weights_only=False)
+        state = load_checkpoint(last, needs=("model", "config", "optimizer", "step", "rng"))
         if config_of(model, network_config(state)) != model.config:
             raise ValueError(
                 f"{last} holds a network of another shape ({network_config(state)}), not "
@@ -177,6 +174,11 @@ def train(
     while step < config.iterations:
         model.train()
         out = step_fn(step, rng)
+        if not torch.isfinite(out["loss"]) or not all(torch.isfinite(p).all() for p in model.parameters()):
+            raise RuntimeError(
+                f"training diverged at step {step} (loss {float(out['loss']):.4g}); {out_dir} keeps its last "
+                f"good checkpoint: resume with a smaller --lr"
+            )
         optimizer.zero_grad()
         out["loss"].backward()
         optimizer.step()
@@ -191,7 +193,8 @@ def train(
         if step % config.validate_every == 0 or step == config.iterations:
             scored.eval()
             with torch.no_grad():
-                figures = {"step": step, "wall_s": round(time.time() - started, 1), **validate_fn(scored)}
+                measured = {name: float(value) for name, value in validate_fn(scored).items()}  # plain data
+                figures = {"step": step, "wall_s": round(time.time() - started, 1), **measured}
             if history and history[-1].keys() != figures.keys():
                 best = -np.inf  # a resumed run whose validation has changed: the old best does not compare
                 bar.write("the validation figures differ from the checkpoint's: best.pt restarts from here")
