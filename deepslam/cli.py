@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import signal
 import sys
+import warnings
 from pathlib import Path
 
 from deepslam.options import add_options, from_args, number_type
@@ -170,6 +173,14 @@ def _drift(args: argparse.Namespace) -> None:
         log.info(f"wrote {path}")
 
 
+def _recover(args: argparse.Namespace) -> None:
+    from deepslam.logs.recover import recover
+
+    frames, damage = recover(args.log, args.out)
+    lost = f" ({damage.report(args.log, frames)})" if damage.problems or damage.dropped_frames else ""
+    print(f"recovered {frames} whole frames of {args.log} into {args.out}{lost}")
+
+
 # ---------------------------------------------------------------- the parser
 
 
@@ -262,6 +273,14 @@ def _pipeline_commands(commands) -> None:
     )
     replay.add_argument("log", type=Path, help="MCAP log written by `deepslam run`")
     replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
+    recover = _command(
+        commands,
+        "recover",
+        "write every whole frame of a killed (OUT.partial) or damaged log as a finished file",
+        _recover,
+    )
+    recover.add_argument("log", type=Path, help="the log to recover, e.g. out/run.mcap.partial")
+    recover.add_argument("--out", type=Path, required=True, help="the finished log to write")
     drift = _command(commands, "drift", "ATE/RPE/final drift of logs, side by side, with plots", _drift)
     drift.add_argument("logs", type=Path, nargs="+", help="MCAP logs holding /groundtruth/pose and /estimate/pose")
     drift.add_argument("--delta", type=number_type(int, 1), default=1, help="frame delta of the RPE")
@@ -366,19 +385,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _configure_logging(args: argparse.Namespace) -> None:
+    """Notes to standard error at the level -q / -v ask for; Python warnings (a damaged log, say) as one
+    line each."""
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(message)s"))
     log.handlers[:] = [handler]
     log.setLevel(level)
     log.propagate = False
+    warnings.showwarning = lambda message, category, *_, **__: log.warning(f"deepslam: warning: {message}")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: logs in progress are finished."""
+
+
+def _terminate(number, frame) -> None:
+    raise Terminated()
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command; exit status 0, 1 for a runtime error, 2 for a usage error, 130 on Ctrl-C."""
+    """Run the command; exit status 0, 1 for a runtime error, 2 for a usage error, 130 on Ctrl-C and
+    143 on SIGTERM."""
     parser = build_parser()
     args = parser.parse_args(argv)
     _configure_logging(args)
+    signal.signal(signal.SIGTERM, _terminate)
     import torch
 
     torch.set_num_threads(getattr(args, "threads", 1))  # small networks: one thread is fastest (the paper's set-up)
@@ -393,9 +425,12 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, RuntimeError) as error:
         print(f"deepslam: error: {error}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("deepslam: interrupted", file=sys.stderr)
-        return 130
+    except BrokenPipeError:  # the reader of our output went away (`deepslam ... | head`)
+        sys.stdout = open(os.devnull, "w")  # nothing more reaches it: do not fail at exit
+        return 0
+    except KeyboardInterrupt as interrupt:
+        print(f"deepslam: {'terminated' if isinstance(interrupt, Terminated) else 'interrupted'}", file=sys.stderr)
+        return 143 if isinstance(interrupt, Terminated) else 130
     return 0
 
 

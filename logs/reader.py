@@ -1,21 +1,36 @@
-"""Reading runs back from MCAP as typed ``LogFrame``s, including interrupted (truncated) files."""
+"""Reading runs back from MCAP as typed ``LogFrame``s, checking every chunk on the way.
+
+Chunks are read one at a time: a chunk whose CRC does not match, that does not decompress, or that
+declares more than ``MAX_CHUNK_BYTES`` uncompressed is skipped, and a file that ends inside a chunk (a
+run that was killed) is read up to there. Frames touched by a lost part are dropped whole: a frame is
+never returned with parts silently missing. What was lost is named, with where it was, in one warning.
+"""
 
 from __future__ import annotations
 
 import json
+import struct
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
 import cv2
 import numpy as np
-from mcap.reader import NonSeekingReader
+import zstandard
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_ros2.decoder import DecoderFactory
 
 from deepslam.logs.frames import Correspondences, LogFrame, pose_matrix
-from deepslam.logs.schemas import FRAME_TOPICS, TOPICS
+from deepslam.logs.schemas import FRAME_TOPICS
 
 MAGIC = b"\x89MCAP0\r\n"
+MAX_CHUNK_BYTES = 64 * 2**20  # a chunk declaring more than this uncompressed is refused (the writer's are 256 KiB)
+MAX_RECORD_BYTES = 256 * 2**20  # a record declaring more than this ends the readable part of the file
+FIRST_TOPIC = FRAME_TOPICS[0]  # the writer starts every frame with its image
 
 
 class LogError(ValueError):
@@ -27,10 +42,138 @@ def check_log(path: str | Path) -> None:
     path = Path(path)
     if not path.exists():
         raise LogError(f"{path}: no such file")
+    if path.is_dir():
+        raise LogError(f"{path}: is a folder, not an MCAP file")
     with open(path, "rb") as f:
         head = f.read(len(MAGIC))
     if head != MAGIC:
         raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+
+
+@dataclass
+class Damage:
+    """What a read lost: one line per damaged or missing part of the file."""
+
+    problems: list[str] = field(default_factory=list)
+    dropped_frames: int = 0
+    complete: bool = True  # the file reached its data end
+
+    def report(self, path: Path, frames: int) -> str:
+        lost = f"; {self.dropped_frames} damaged frames dropped" if self.dropped_frames else ""
+        return f"{path}: {'; '.join(self.problems)}; read {frames} whole frames{lost}"
+
+
+@dataclass
+class RawMessage:
+    """A message as stored: its channel, that channel's schema (None without one) and the record."""
+
+    schema: Schema | None
+    channel: Channel
+    message: Message
+
+
+def _chunk_where(index: int, chunk: Chunk) -> str:
+    return f"chunk {index} (log time {chunk.message_start_time / 1e9:.3f}-{chunk.message_end_time / 1e9:.3f} s)"
+
+
+def raw_records(path: str | Path, damage: Damage) -> Iterator[RawMessage | Metadata | None]:
+    """Every readable message (and metadata record) of the file in order, and None where a part of the
+    file was lost (a skipped chunk, or the end of what could be read); ``damage`` names each loss."""
+    path = Path(path)
+    check_log(path)
+    schemas, channels = _summary_definitions(path)
+    chunks, orphans = 0, 0
+    with open(path, "rb") as f:
+        records = StreamReader(f, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except (McapError, EOFError, ValueError, OSError, UnicodeDecodeError) as error:
+                damage.complete = False
+                cause = "the file ends" if "EndOfFile" in type(error).__name__ else f"unreadable ({error})"
+                damage.problems.append(f"truncated: {cause} after chunk {chunks}")
+                yield None
+                return
+            if isinstance(record, DataEnd):
+                return
+            inner: list = [record]
+            if isinstance(record, Chunk):
+                chunks += 1
+                inner = _open_chunk(record, chunks, damage)
+                if inner is None:
+                    yield None
+                    continue
+            for item in inner:
+                if isinstance(item, Schema):
+                    schemas[item.id] = item
+                elif isinstance(item, Channel):
+                    channels[item.id] = item
+                elif isinstance(item, Message) and item.channel_id not in channels:
+                    orphans += 1
+                    if orphans == 1:
+                        damage.problems.append("messages on a channel defined in a lost part: skipped")
+                    yield None
+                elif isinstance(item, Message):
+                    channel = channels[item.channel_id]
+                    yield RawMessage(schemas.get(channel.schema_id), channel, item)
+                elif isinstance(item, Metadata):
+                    yield item
+
+
+def _summary_definitions(path: Path) -> tuple[dict[int, Schema], dict[int, Channel]]:
+    """The schemas and channels listed in a finished file's summary (empty for a killed file or a
+    damaged summary), so that messages after a lost chunk can still be decoded."""
+    try:
+        with open(path, "rb") as f:
+            summary = SeekingReader(f).get_summary()
+    except (McapError, struct.error, ValueError, EOFError, OSError):
+        return {}, {}
+    return (dict(summary.schemas), dict(summary.channels)) if summary else ({}, {})
+
+
+def _open_chunk(chunk: Chunk, index: int, damage: Damage) -> list | None:
+    """The records of a chunk, or None (and the loss named in ``damage``) if it is damaged."""
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+        damage.problems.append(
+            f"{_chunk_where(index, chunk)} declares {chunk.uncompressed_size / 2**20:.0f} MiB, over the "
+            f"{MAX_CHUNK_BYTES / 2**20:.0f} MiB limit: skipped"
+        )
+        return None
+    try:
+        return breakup_chunk(chunk, validate_crc=True)
+    except (McapError, zstandard.ZstdError, struct.error, ValueError, RuntimeError, EOFError) as error:
+        damage.problems.append(f"{_chunk_where(index, chunk)} is corrupt ({type(error).__name__}): skipped")
+        return None
+
+
+def frame_messages(path: str | Path, damage: Damage) -> Iterator[list[RawMessage]]:
+    """The messages of each whole frame (same log time, starting with the image, nothing lost in
+    between), in order; frames touched by a lost part are counted in ``damage`` and not yielded."""
+    pending: list[RawMessage] = []
+    whole = after_loss = False
+    for item in raw_records(path, damage):
+        if item is None:  # a lost part: the frame being assembled may lack messages
+            damage.dropped_frames += bool(pending)
+            pending, whole, after_loss = [], False, True
+            continue
+        if isinstance(item, Metadata):
+            continue
+        if pending and item.message.log_time != pending[0].message.log_time:
+            if whole:
+                yield pending
+                after_loss = False
+            else:
+                damage.dropped_frames += after_loss  # its head was lost (else: not a frame of ours)
+            pending = []
+        if not pending:
+            whole = item.channel.topic == FIRST_TOPIC  # a frame whose head was lost does not start with it
+        pending.append(item)
+    if pending and whole and damage.complete:
+        yield pending
+    elif pending and (whole or after_loss):
+        damage.dropped_frames += 1
 
 
 def _stamp(time) -> int:
@@ -73,51 +216,44 @@ def _apply(frame: dict, topic: str, message) -> None:
         )
 
 
+class _Decoders:
+    """CDR decoders per schema, made once."""
+
+    def __init__(self):
+        self.factory, self.by_schema = DecoderFactory(), {}
+
+    def decode(self, raw: RawMessage):
+        if raw.schema is None:
+            raise LogError(f"topic {raw.channel.topic} has no schema")
+        if raw.schema.id not in self.by_schema:
+            self.by_schema[raw.schema.id] = self.factory.decoder_for(raw.channel.message_encoding, raw.schema)
+        decoder = self.by_schema[raw.schema.id]
+        if decoder is None:
+            raise LogError(f"topic {raw.channel.topic}: no decoder for {raw.channel.message_encoding}")
+        return decoder(raw.message.data)
+
+
 def read_frames(path: str | Path) -> Iterator[LogFrame]:
-    """Frames of a log in time order. A truncated file (an interrupted run) is read up to its last
-    whole chunk, with a warning that says what is missing; a frame missing image or camera info is an
-    error."""
+    """Whole frames of a log in time order; what a damaged or cut-off file lost is named in one warning
+    at the end. A file without the frame topics (not a deepslam log) is a ``LogError``."""
     path = Path(path)
-    check_log(path)
-    parts: dict = {}
-    stamp: int | None = None
-    count = 0
-    topics: set[str] = set()  # the topics of a whole frame (those of the first one)
-    topics_now: set[str] = set()  # the topics of the frame being assembled
-    with open(path, "rb") as f:
-        messages = NonSeekingReader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
-            topics=list(TOPICS), log_time_order=False
-        )
-        while True:
-            try:
-                _, channel, message, decoded = next(messages)
-            except StopIteration:
-                break
-            except Exception as error:  # the mcap library raises several kinds on a cut-off file
-                if stamp is not None and topics and topics_now >= topics:  # the pending frame is whole
-                    yield _complete(path, stamp, parts)
-                    count += 1
-                warnings.warn(
-                    f"{path} is truncated ({type(error).__name__}: {error}); read {count} whole frames; "
-                    f"what came after them, in the file's unfinished last chunk, is missing",
-                    stacklevel=2,
-                )
-                return
-            if message.log_time != stamp:
-                if stamp is not None:
-                    yield _complete(path, stamp, parts)
-                    count += 1
-                    topics = topics or topics_now
-                stamp, parts, topics_now = message.log_time, {}, set()
-            _apply(parts, channel.topic, decoded)
-            topics_now.add(channel.topic)
-    if stamp is None:
+    damage, decoders, count = Damage(), _Decoders(), 0
+    for messages in frame_messages(path, damage):
+        parts: dict = {}
+        for raw in messages:
+            _apply(parts, raw.channel.topic, decoders.decode(raw))
+        yield _complete(path, messages[0].message.log_time, parts)
+        count += 1
+    if not count and (damage.problems or damage.dropped_frames):
+        raise LogError(f"no whole frame could be read: {damage.report(path, count)}")
+    if not count:
         raise LogError(f"{path}: the log lacks the topics {', '.join(FRAME_TOPICS)}; is this a deepslam log?")
-    yield _complete(path, stamp, parts)
+    if damage.problems or damage.dropped_frames:
+        warnings.warn(damage.report(path, count), stacklevel=2)
 
 
 def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
-    missing = [t for t, key in zip(FRAME_TOPICS, ("image", "K"), strict=False) if key not in parts]
+    missing = [t for t, key in zip(FRAME_TOPICS, ("image", "K"), strict=True) if key not in parts]
     if missing:
         raise LogError(
             f"{path}: the frame at {stamp} ns lacks the topics {', '.join(missing)}; is this a deepslam log?"
@@ -137,14 +273,9 @@ def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
 def read_metadata(path: str | Path) -> dict:
     """The run's metadata (configuration, seed, software version), JSON values decoded."""
     path = Path(path)
-    check_log(path)
-    with open(path, "rb") as f:
-        try:
-            for record in NonSeekingReader(f).iter_metadata():
-                if record.name == "deepslam":
-                    return {k: _maybe_json(v) for k, v in record.metadata.items()}
-        except Exception as error:
-            raise LogError(f"{path}: could not read its metadata ({error})") from error
+    for item in raw_records(path, Damage()):
+        if isinstance(item, Metadata) and item.name == "deepslam":
+            return {k: _maybe_json(v) for k, v in item.metadata.items()}
     raise LogError(f"{path}: no deepslam metadata; was it written by `deepslam run`?")
 
 

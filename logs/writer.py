@@ -1,12 +1,17 @@
 """Writing runs to MCAP as ROS 2 messages (CDR), chunk by chunk as the run goes.
 
-The file is flushed after every frame, so a run that is killed leaves a file readable up to its last
-complete chunk; ``close`` (also on Ctrl-C, through the context manager) writes the summary.
+A log in progress is ``OUT.partial`` beside ``OUT``, locked against a second writer and flushed after
+every frame, so a run that is killed leaves a file readable up to its last complete chunk
+(``deepslam recover`` finishes it). When the run ends, normally or by Ctrl-C / SIGTERM (the context
+manager), the summary is written and the file renamed to ``OUT``; a run that fails keeps its frames in
+``OUT.partial`` and leaves any existing ``OUT`` untouched.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 import signal
 import threading
 from contextlib import contextmanager
@@ -50,7 +55,7 @@ def ros_covariance(covariance: np.ndarray, T: np.ndarray) -> list[float]:
 
 @contextmanager
 def _whole():
-    """Hold off Ctrl-C (SIGINT) until the block is done, so a frame is never half written.
+    """Hold off Ctrl-C (SIGINT) and SIGTERM until the block is done, so a frame is never half written.
 
     Only the main thread can handle signals; elsewhere the block runs as is.
     """
@@ -58,22 +63,61 @@ def _whole():
         yield
         return
     received = []
-    previous = signal.signal(signal.SIGINT, lambda number, stack: received.append((number, stack)))
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, lambda number, stack: received.append((number, stack))) for s in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        if received and callable(previous):
-            previous(*received[0])
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        if received and callable(previous[received[0][0]]):
+            previous[received[0][0]](*received[0])
+
+
+class LogWriteError(ValueError):
+    """An output path that cannot take a log."""
+
+
+def partial_path(path: str | Path) -> Path:
+    """Where a log bound for ``path`` is written while the run goes on."""
+    path = Path(path)
+    return path.with_name(path.name + ".partial")
+
+
+def check_output(path: str | Path, inputs: tuple[str | Path, ...] = ()) -> None:
+    """Raise ``LogWriteError`` unless a log can be written to ``path``: not a folder, its folder
+    writable (or creatable), and neither ``path`` nor its ``.partial`` the same file as any of
+    ``inputs`` under any name (hard links and symlinks included)."""
+    path = Path(path)
+    if path.is_dir():
+        raise LogWriteError(f"{path} is a folder; give a file name for the log")
+    for target in (path, partial_path(path)):
+        for source in inputs:
+            if target.exists() and Path(source).exists() and target.samefile(source):
+                raise LogWriteError(f"writing {target} would overwrite the input {source}; choose another --out")
+    folder = path.parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise LogWriteError(f"cannot write a log under {folder}: not a writable folder")
 
 
 class LogWriter:
     """``with LogWriter(path, metadata) as log: log.write(frame)`` for each ``LogFrame``."""
 
     def __init__(self, path: str | Path, metadata: dict, chunk_size: int = 256 * 1024):
+        check_output(path)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(self.path, "wb")
+        self.partial = partial_path(self.path)
+        descriptor = os.open(self.partial, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(descriptor)
+            raise LogWriteError(f"{self.path} is being written by another run ({self.partial} is locked)") from None
+        os.ftruncate(descriptor, 0)
+        self._file = os.fdopen(descriptor, "wb")
         self._writer = Ros2Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._schemas = {
             topic: self._writer.register_msgdef(ros2_name(kind), msgdef(kind)) for topic, kind in TOPICS.items()
@@ -183,14 +227,22 @@ class LogWriter:
         self.frames += 1
         self._file.flush()
 
-    def close(self) -> None:
-        """Finish the file (summary and footer); safe to call twice."""
-        if not self._file.closed:
-            self._writer.finish()
-            self._file.close()
+    def close(self, complete: bool = True) -> None:
+        """Finish the file (summary and footer) and, if ``complete``, rename it from ``.partial`` to its
+        path; safe to call twice."""
+        if self._file.closed:
+            return
+        self._writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        if complete:
+            self.partial.replace(self.path)
+        self._file.close()  # closing releases the lock
 
     def __enter__(self) -> "LogWriter":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, kind, error, traceback) -> None:
+        """A run that ends normally or is interrupted (Ctrl-C, SIGTERM) becomes ``path``; a run that fails
+        stays in ``.partial``, leaving whatever ``path`` held."""
+        self.close(complete=kind is None or issubclass(kind, KeyboardInterrupt))

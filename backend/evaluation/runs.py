@@ -67,6 +67,10 @@ def simulate(
 
     Returns {"estimate", "truth", "drift", "scale", "odometry"}; the drift figures say which scale was used.
     """
+    if out is not None:
+        from deepslam.logs.writer import check_output
+
+        check_output(out)
     scenario = Scenario(scenario_config)
     if odometry_config.scale == "plane" and odometry_config.plane_distance is None:
         odometry_config = replace(odometry_config, plane_distance=scenario.plane_distance())
@@ -104,12 +108,12 @@ def replay(
     """Feed a log's images (camera info, ground truth) through the pipeline again into a new log
     (never over the log it reads)."""
     from deepslam.logs.reader import check_log
+    from deepslam.logs.writer import check_output
 
     if tracker_config.frontend == "oracle":
         raise ValueError("the oracle front-end needs the simulator's landmarks, which logs do not hold")
     check_log(log)
-    if Path(out).resolve() == Path(log).resolve():
-        raise ValueError(f"replaying {log} into itself would overwrite it; choose another --out")
+    check_output(out, inputs=(log,))
     odometry = Odometry(_tracker(tracker_config, odometry_config), odometry_config)
     meta = {
         "replayed_from": str(log),

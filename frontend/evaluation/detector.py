@@ -236,7 +236,7 @@ def sequence_repeatability(
     pairs = []
     for sequence, homographies in progress_bar(sequences, desc=progress, disable=progress is None, leave=False):
         points = [detector.detect(f) for f in sequence]
-        pairs += list(zip(points, points[1:], homographies, strict=True))
+        pairs += list(zip(points[:-1], points[1:], homographies, strict=True))
     rep, count, error = repeatability_at_n(pairs, sequences[0][0][0].shape)
     return {"repeatability": rep, "n": count, "localization_error": error}
 
