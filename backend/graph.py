@@ -1,13 +1,20 @@
-"""A gtsam pose graph over camera poses, solved incrementally with ISAM2.
+"""A gtsam pose graph over camera poses, solved incrementally with ISAM2, in a sliding window.
 
 One ``Pose3`` per frame (key = frame index), a prior on the first, a robust ``BetweenFactorPose3``
 per relative-pose measurement (consecutive or between non-consecutive keyframes).
 Noise sigmas are ordered as gtsam wants them: rotation (rad) first, then translation.
+
+With a ``window`` (the default), a pose that no factor has used for that many frames is marginalised
+out (gtsam's ``IncrementalFixedLagSmoother``): its estimate is kept as it was, its information stays in
+the graph as a prior on what it was linked to, and time and memory per frame stay flat on long runs.
+Keys passed to ``update(keep=...)`` (the keyframes still measured against) stay in the window.
+``window=None`` keeps every pose in ISAM2 (and the whole graph, for ``batch_solve``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterable
 
 import gtsam
 import numpy as np
@@ -18,6 +25,7 @@ class GraphConfig:
     prior_sigmas: tuple[float, ...] = (1e-4,) * 6
     huber_k: float = 1.345
     relinearize_threshold: float = 0.001
+    window: int | None = 50  # frames a pose stays after it was last used; None: never marginalised
 
 
 def measurement_sigmas(
@@ -44,68 +52,106 @@ class PoseGraph:
     """Incremental pose graph: ``add_pose`` per frame, ``add_between`` per measurement, ``update``."""
 
     def __init__(self, first_pose: np.ndarray, config: GraphConfig = GraphConfig()):
+        if config.window is not None and config.window < 1:
+            raise ValueError(f"the graph's window must be at least 1 frame (or None), got {config.window}")
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(config.relinearize_threshold)
         params.relinearizeSkip = 1  # check every update (gtsam's default skips 10)
-        self.isam = gtsam.ISAM2(params)
         self.config = config
-        self.graph = gtsam.NonlinearFactorGraph()  # every factor, for batch re-solves
-        self.initial = gtsam.Values()  # every initial guess
+        if config.window is None:
+            self.solver = gtsam.ISAM2(params)
+            self.graph: gtsam.NonlinearFactorGraph | None = gtsam.NonlinearFactorGraph()  # for batch re-solves
+            self.initial: gtsam.Values | None = gtsam.Values()
+        else:
+            self.solver = gtsam.IncrementalFixedLagSmoother(float(config.window), params)
+            self.graph = self.initial = None
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
+        self._new_keys: list[int] = []
+        self._estimates: dict[int, np.ndarray] = {}  # every pose's latest estimate, marginalised ones included
         self._add_factor(
             gtsam.PriorFactorPose3(
                 0, gtsam.Pose3(first_pose), gtsam.noiseModel.Diagonal.Sigmas(np.array(config.prior_sigmas))
             )
         )
-        self._insert(0, first_pose)
-        self.count = 1
+        self.add_pose(0, first_pose)
         self.update()
 
-    def _add_factor(self, factor) -> None:
-        self.graph.add(factor)
-        self._new_factors.add(factor)
+    @property
+    def count(self) -> int:
+        """Poses added so far."""
+        return len(self._estimates)
 
-    def _insert(self, key: int, T: np.ndarray) -> None:
-        self.initial.insert(key, gtsam.Pose3(T))
-        self._new_values.insert(key, gtsam.Pose3(T))
+    def _add_factor(self, factor) -> None:
+        if self.graph is not None:
+            self.graph.add(factor)
+        self._new_factors.add(factor)
 
     def add_pose(self, key: int, guess: np.ndarray) -> None:
         """A new pose variable with an initial guess ``T_world_cam``."""
-        self._insert(key, guess)
-        self.count += 1
+        if self.initial is not None:
+            self.initial.insert(key, gtsam.Pose3(guess))
+        self._new_values.insert(key, gtsam.Pose3(guess))
+        self._new_keys.append(key)
+        self._estimates[key] = np.asarray(guess, np.float64)
+
+    def in_window(self, key: int) -> bool:
+        """Whether ``key`` can still take factors (not marginalised out)."""
+        return self.config.window is None or key in self._new_keys or self.solver.timestamps().get(key) is not None
 
     def add_between(self, key_1: int, key_2: int, T_1_2: np.ndarray, sigmas: np.ndarray) -> None:
-        """A robust (Huber) between factor: pose 2 seen from pose 1 is ``T_1_2``."""
+        """A robust (Huber) between factor: pose 2 seen from pose 1 is ``T_1_2``. Both poses must be in the
+        window (ValueError otherwise)."""
+        for key in (key_1, key_2):
+            if not self.in_window(key):
+                raise ValueError(f"pose {key} has left the graph's window; keep it with update(keep=...)")
         noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k),
             gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, np.float64)),
         )
         self._add_factor(gtsam.BetweenFactorPose3(key_1, key_2, gtsam.Pose3(T_1_2), noise))
 
-    def update(self) -> None:
-        """Fold the new factors and values into ISAM2."""
-        self.isam.update(self._new_factors, self._new_values)
-        self._new_factors = gtsam.NonlinearFactorGraph()
-        self._new_values = gtsam.Values()
+    def update(self, keep: Iterable[int] = ()) -> None:
+        """Fold the new factors and values in; with a window, the new poses and ``keep`` count as used now."""
+        if self.config.window is None:
+            self.solver.update(self._new_factors, self._new_values)
+        else:
+            now = float(max(self._estimates))
+            timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
+            for key in {*self._new_keys, *keep}:
+                timestamps.insert((key, now))
+            self.solver.update(self._new_factors, self._new_values, timestamps)
+            estimate = self.solver.calculateEstimate()  # the window only: a few dozen poses
+            for key in estimate.keys():
+                self._estimates[key] = estimate.atPose3(key).matrix()
+        self._new_factors, self._new_values, self._new_keys = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
 
     def refine(self, iterations: int = 3) -> None:
         """Extra ISAM2 iterations with no new factors (relinearises what moved beyond the threshold)."""
         for _ in range(iterations):
-            self.isam.update()
+            self.update()
 
     def pose(self, key: int) -> np.ndarray:
-        return self.isam.calculateEstimatePose3(key).matrix()
+        """The latest estimate (4, 4) of a pose (as it was when marginalised, for one out of the window)."""
+        if self.config.window is None:
+            return self.solver.calculateEstimatePose3(key).matrix()
+        return self._estimates[key]
 
     def poses(self) -> np.ndarray:
-        estimate = self.isam.calculateEstimate()
-        return np.stack([estimate.atPose3(k).matrix() for k in range(self.count)])
+        """Every pose's latest estimate (N, 4, 4), in key order."""
+        if self.config.window is None:
+            estimate = self.solver.calculateEstimate()
+            return np.stack([estimate.atPose3(k).matrix() for k in range(self.count)])
+        return np.stack([self._estimates[k] for k in range(self.count)])
 
     def covariance(self, key: int) -> np.ndarray:
-        """Marginal covariance (6, 6) of a pose, rotation first, in the pose's tangent space."""
-        return self.isam.marginalCovariance(key)
+        """Marginal covariance (6, 6) of a pose in the window, rotation first, in the pose's tangent space."""
+        return self.solver.marginalCovariance(key)
 
     def batch_solve(self) -> np.ndarray:
-        """Levenberg-Marquardt on the whole graph from the initial guesses, for cross-checking ISAM2."""
+        """Levenberg-Marquardt on the whole graph from the initial guesses, for cross-checking ISAM2
+        (``window=None`` only: a windowed graph no longer holds what it marginalised)."""
+        if self.graph is None or self.initial is None:
+            raise ValueError("batch_solve needs the whole graph: make the PoseGraph with GraphConfig(window=None)")
         result = gtsam.LevenbergMarquardtOptimizer(self.graph, self.initial).optimize()
         return np.stack([result.atPose3(k).matrix() for k in range(self.count)])

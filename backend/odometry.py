@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from deepslam.backend import relpose
-from deepslam.backend.graph import PoseGraph, measurement_sigmas
+from deepslam.backend.graph import GraphConfig, PoseGraph, measurement_sigmas
 from deepslam.frontend.tracking import Tracker, Tracks, Truth
 
 Scale = Literal["gt", "plane"]
@@ -68,6 +68,7 @@ class OdometryConfig:
     min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
     min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
     covariance: bool = True  # compute the latest pose's marginal covariance every frame
+    graph: GraphConfig = GraphConfig()  # the pose graph's noise and window
 
     def __post_init__(self):
         if self.method not in relpose.METHODS:
@@ -83,6 +84,16 @@ class OdometryConfig:
             )
         if self.plane_distance is not None and not self.plane_distance > 0:
             raise ValueError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
+
+
+@dataclass(frozen=True)
+class _Kept:
+    """What the odometry keeps of a frame it may still measure against: K (3, 3), the image's (H, W) and
+    its ground-truth pose (4, 4) or None."""
+
+    K: np.ndarray
+    shape: tuple[int, int]
+    T_world_cam: np.ndarray | None
 
 
 @dataclass
@@ -119,7 +130,8 @@ class Odometry:
             raise ValueError("scale 'plane' needs the first camera's distance to the dominant plane")
         self.tracker, self.config = tracker, config
         self.graph: PoseGraph | None = None
-        self.history: list[tuple[InputFrame, Tracks]] = []
+        self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index
+        self.frames = 0
         self.plane_distance = config.plane_distance
         self.last_translation: np.ndarray | None = None
         self.model = config.method  # "auto" until a wide-baseline pair has chosen H or E
@@ -139,7 +151,7 @@ class Odometry:
         tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
         pairs = shared_tracks(tracks_i, tracks_j)
         p1, p2 = tracks_i.points[pairs[:, 0]], tracks_j.points[pairs[:, 1]]
-        rel = relpose.estimate(p1, p2, frame_j.K, self.model, frame_j.image.shape, self.last_translation)
+        rel = relpose.estimate(p1, p2, frame_j.K, self.model, frame_j.shape, self.last_translation)
         if rel.ok and self.config.scale == "plane" and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K)  # magnitude from the dominant plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
@@ -173,11 +185,11 @@ class Odometry:
         started = time.perf_counter()
         tracks = self.tracker.track(frame.image, frame.truth)
         tracked = time.perf_counter()
-        self.history.append((frame, tracks))
-        k = len(self.history) - 1
+        k, self.frames = self.frames, self.frames + 1
+        self.history[k] = (_Kept(frame.K, frame.image.shape, frame.T_world_cam), tracks)
         if k == 0:
             first = frame.T_world_cam if frame.T_world_cam is not None else np.eye(4)
-            self.graph = PoseGraph(first)
+            self.graph = PoseGraph(first, self.config.graph)
             return FrameResult(
                 0,
                 tracks,
@@ -206,7 +218,7 @@ class Odometry:
         self.graph.add_pose(k, self.graph.pose(kf) @ T)
         self.graph.add_between(kf, k, T, sigmas)
         self._link_previous_keyframe(k, kf)
-        self.graph.update()
+        self.graph.update(keep=[key for key in (self.keyframe, self.previous_keyframe) if key is not None])
         current = self.keyframe
         current_pairs = shared_tracks(self.history[current][1], tracks)
         if (
@@ -216,6 +228,7 @@ class Odometry:
             if rel.ok and kf == current:
                 self._update_plane_distance(rel, T)
             self.previous_keyframe, self.keyframe = current, k
+        self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         pose = self.graph.pose(k)
         optimised = time.perf_counter()
         covariance = self.graph.covariance(k) if self.config.covariance else None

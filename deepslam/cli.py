@@ -119,7 +119,8 @@ def _bench(args: argparse.Namespace) -> None:
 
         timings = bench_pipeline(args.frames, tracker_config=_config(args, TrackerConfig))
         for name, value in timings.items():
-            print(f"  {name:<24} {value:8.2f} {'' if name == 'fps' else 'ms'}")
+            unit = "" if name == "fps" else "MB" if name.startswith("memory") else "ms"
+            print(f"  {name:<24} {value:8.2f} {unit}")
         return
     from deepslam.frontend.evaluation import bench
 
@@ -366,7 +367,6 @@ def _bench_commands(commands) -> None:
         "per-frame time of every pipeline stage (no rendering)",
         _bench,
         TrackerConfig,
-        exclude=("frontend",),
     )
     pipeline.add_argument(
         "--frames", type=number_type(int, 2), default=60, help="frames of the simulated run, each timed once"
@@ -411,9 +411,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     _configure_logging(args)
     signal.signal(signal.SIGTERM, _terminate)
+    import cv2
     import torch
 
-    torch.set_num_threads(getattr(args, "threads", 1))  # small networks: one thread is fastest (the paper's set-up)
+    threads = getattr(args, "threads", 1)
+    torch.set_num_threads(threads)  # small networks: one thread is fastest (the paper's set-up)
+    cv2.setNumThreads(threads)
     try:
         args.func(args)
     except _UsageError as error:

@@ -5,12 +5,12 @@ python examples/pose_graph.py
 
 import numpy as np
 
-from deepslam.backend.graph import PoseGraph
+from deepslam.backend.graph import GraphConfig, PoseGraph
 from deepslam.sim.camera import pose
 
 step = pose(np.array([0.0, 0.1, 0.0]), np.array([0.5, 0.0, 0.0]))  # move 0.5 m, turn 0.1 rad
 sigmas = np.array([0.01] * 3 + [0.05] * 3)  # rotation first, then translation
-graph = PoseGraph(np.eye(4))
+graph = PoseGraph(np.eye(4), GraphConfig(window=None))  # keep every pose, for the batch cross-check
 for k in range(1, 10):
     graph.add_pose(k, graph.pose(k - 1) @ step)
     graph.add_between(k - 1, k, step, sigmas)

@@ -55,6 +55,7 @@ class Tracker:
     def __init__(self):
         self.previous = Tracks.empty()
         self._next_id = 0
+        self.timings_ms: dict[str, float] = {}  # the last frame's stages, where a front-end times them
 
     def _new_ids(self, count: int) -> np.ndarray:
         ids = np.arange(self._next_id, self._next_id + count, dtype=np.int64)
@@ -119,7 +120,6 @@ class MagicTracker(Tracker):
         self.live = np.zeros((0, 2))  # positions of live tracks (detected or carried)
         self.live_ids = np.zeros(0, np.int64)
         self.live_age = np.zeros(0, np.int64)  # frames since last detected
-        self.timings_ms: dict[str, float] = {}  # the last frame's stages
 
     def _homography(self, points: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
         """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: MagicWarp's

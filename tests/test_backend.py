@@ -4,7 +4,7 @@ import pytest
 from deepslam.backend import drift, relpose
 from deepslam.backend.evaluation.runs import run_frames, simulate, simulated_frames
 from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix
-from deepslam.backend.graph import PoseGraph
+from deepslam.backend.graph import GraphConfig, PoseGraph
 from deepslam.backend.odometry import Odometry, OdometryConfig
 from deepslam.frontend.tracking import OracleTracker, TrackerConfig, Truth, make_tracker
 from deepslam.geometry import path_length
@@ -93,7 +93,7 @@ def test_isam2_agrees_with_batch_levenberg_marquardt(rng):
     poses = [np.eye(4)]
     for _ in range(10):
         poses.append(poses[-1] @ pose(rng.normal(0, 0.05, 3), rng.normal(0, 0.2, 3)))
-    graph = PoseGraph(poses[0])
+    graph = PoseGraph(poses[0], GraphConfig(window=None))
     sigmas = np.array([0.01] * 3 + [0.05] * 3)
     for k in range(1, len(poses)):
         measured = invert(poses[k - 1]) @ poses[k] @ pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3))
@@ -108,6 +108,31 @@ def test_isam2_agrees_with_batch_levenberg_marquardt(rng):
     assert np.abs(graph.poses()[:, :3, 3] - batch[:, :3, 3]).mean() < 1e-3
     covariance = graph.covariance(len(poses) - 1)
     assert covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > 0)
+
+
+def test_a_windowed_graph_marginalises_old_poses_and_keeps_their_estimates(rng):
+    poses = [np.eye(4)]
+    for _ in range(60):
+        poses.append(poses[-1] @ pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.1, 3)))
+    sigmas = np.array([0.01] * 3 + [0.05] * 3)
+    graphs = {window: PoseGraph(poses[0], GraphConfig(window=window)) for window in (None, 10)}
+    for k in range(1, len(poses)):
+        measured = invert(poses[k - 1]) @ poses[k] @ pose(rng.normal(0, 0.005, 3), rng.normal(0, 0.01, 3))
+        for graph in graphs.values():
+            graph.add_pose(k, graph.pose(k - 1) @ measured)
+            graph.add_between(k - 1, k, measured, sigmas)
+            if k % 5 == 0:  # a loop to the first pose, kept in the window on purpose
+                graph.add_between(0, k, invert(poses[0]) @ poses[k], sigmas)
+            graph.update(keep=[0])
+    full, windowed = graphs[None], graphs[10]
+    assert not windowed.in_window(20) and windowed.in_window(0) and windowed.in_window(60)
+    with pytest.raises(ValueError, match="left the graph's window"):
+        windowed.add_between(20, 60, np.eye(4), sigmas)
+    with pytest.raises(ValueError, match="window=None"):
+        windowed.batch_solve()
+    assert windowed.poses().shape == (61, 4, 4)  # every pose keeps an estimate
+    gap = np.linalg.norm(windowed.poses()[:, :3, 3] - full.poses()[:, :3, 3], axis=1)
+    assert gap.max() < 0.01  # marginalising keeps what the old poses said about the recent ones
 
 
 def test_drift_metrics(rng):

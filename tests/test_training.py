@@ -215,3 +215,71 @@ def test_init_deepens_a_network_with_identity_blocks(tmp_path):
         load_weights(MagicWarpNet(MagicWarpConfig(widths=(8, 16), hidden=16, blocks=1)), tmp_path / "older.pt")
     with pytest.raises(ValueError, match="whole number of stages"):
         MagicWarpConfig(widths=(8, 8, 16, 16), blocks=3)
+
+
+def _photo_folder(folder: Path, count: int = 3) -> Path:
+    """A folder of small synthetic 'photographs' (random rectangles), one sub-folder each."""
+    import cv2
+
+    rng = np.random.default_rng(5)
+    for index in range(count):
+        image = np.full((180, 240), 90, np.uint8)
+        for _ in range(12):
+            x, y = rng.integers(0, 200), rng.integers(0, 150)
+            cv2.rectangle(image, (int(x), int(y)), (int(x + rng.integers(10, 60)), int(y + rng.integers(10, 40))),
+                          int(rng.integers(0, 256)), -1)  # fmt: skip
+        (folder / f"scene{index}").mkdir(parents=True)
+        cv2.imwrite(str(folder / f"scene{index}" / "photo.png"), image)
+    return folder
+
+
+def test_photo_split_keeps_benchmark_photos_out_and_is_stable(tmp_path):
+    from deepslam.frontend.evaluation.detector import PHOTOS
+    from deepslam.sim import photos, world
+
+    folder = _photo_folder(tmp_path / "photos", 6)
+    parts = photos.split((folder,))
+    names = [p.name for part in parts.values() for p in part]
+    assert set(world._PHOTOS) | set(PHOTOS) <= set(photos.BENCHMARK)
+    assert not {n.split(":")[-1] for n in names} & set(photos.BENCHMARK)  # never trained or validated on
+    assert parts["validation"] and parts["training"]
+    assert photos.split((folder,)) == parts  # the same split every time
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no photographs"):
+        photos.folder_photos(tmp_path / "empty")
+    view = photos.random_view(np.zeros((400, 600), np.uint8), np.random.default_rng(0))
+    assert view.shape == (120, 160) and view.dtype == np.uint8
+
+
+def test_soft_targets_spread_a_subpixel_point_within_its_cell():
+    from deepslam.frontend.training.adaptation import soft_targets
+
+    targets = soft_targets([np.array([[10.25, 20.5, 0.9], [10.5, 20.5, 0.1]])], (120, 160))
+    cell = targets[0, :, 20 // 8, 10 // 8]
+    assert cell.sum() == pytest.approx(1.0) and cell[64] == 0  # one point per cell: the best-scoring
+    # (10.25, 20.5) -> pixels x 10/11, y 20/21 with weights 0.75/0.25 and 0.5/0.5
+    assert cell[(20 % 8) * 8 + 10 % 8] == pytest.approx(0.375)  # channel of pixel (10, 20) in its cell
+    assert cell[(21 % 8) * 8 + 11 % 8] == pytest.approx(0.125)
+    assert targets[0, 64].sum() == targets.shape[2] * targets.shape[3] - 1  # every other cell is dustbin
+
+
+def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_path):
+    from deepslam.frontend.training import adaptation
+
+    folder = _photo_folder(tmp_path / "photos")
+    config = adaptation.AdaptConfig(
+        photos=(str(folder),), views=4, warps=3, iterations=2, batch=4, validate_every=2, rounds=2, validation_views=1
+    )
+    figures = adaptation.run(tmp_path / "ha", config)
+    assert {"rep_clean", "rep_noisy", "loc_clean", "map_clean", "map_noisy", "score"} <= set(figures)
+    shard = tmp_path / "ha" / "round2" / "labels" / "shard_000.npz"
+    assert shard.exists() and (tmp_path / "ha" / "round2" / "best.pt").exists()
+    labelled = shard.stat().st_mtime_ns
+    adaptation.run(tmp_path / "ha", config)  # everything done: labels reused, rounds resumed at their end
+    assert shard.stat().st_mtime_ns == labelled
+    with pytest.raises(ValueError, match="trained on labels of another"):
+        adaptation.run(tmp_path / "ha", replace(config, warps=4))
+    detector = MagicPoint.pretrained("S-HA", path=tmp_path / "ha" / "round2" / "best.pt")
+    assert detector.subpixel == "centroid"  # the variant's own extraction default
+    with pytest.raises(ValueError, match="no folder of photographs"):
+        adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))

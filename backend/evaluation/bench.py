@@ -1,30 +1,53 @@
-"""Per-frame timings of the whole pipeline on a simulated run."""
+"""Per-frame timings of the whole pipeline on a simulated run, and how they and memory grow on long runs."""
 
 from __future__ import annotations
+
+import resource
+from pathlib import Path
 
 import numpy as np
 
 from deepslam.backend.evaluation.runs import simulated_frames
 from deepslam.backend.odometry import Odometry, OdometryConfig
 from deepslam.frontend.tracking import TrackerConfig, make_tracker
+from deepslam.progress import progress_bar
 from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+EARLY_FRAME = 500  # long runs: growth is measured from this frame to the last
+WINDOW = 100  # frames averaged for the graph time around a point of the run
+
+
+def resident_mb() -> float:
+    """This process's resident memory in MB (the peak where /proc is missing)."""
+    statm = Path("/proc/self/statm")
+    if statm.exists():
+        return int(statm.read_text().split()[1]) * resource.getpagesize() / 1e6
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
 
 
 def bench_pipeline(
     frames: int = 60, seed: int = 0, tracker_config: TrackerConfig = TrackerConfig()
 ) -> dict[str, float]:
-    """Mean per-frame milliseconds of each stage (rendering not counted) of the magic front-end
-    ``tracker_config`` describes: the odometry's stages, and inside its front-end MagicPoint, MagicWarp
-    and matching. Time it on one torch thread (the CLI sets it)."""
-    rendered = list(simulated_frames(Scenario(ScenarioConfig(frames=frames, seed=seed))))
+    """Mean per-frame milliseconds of each stage (rendering not counted) of the front-end
+    ``tracker_config`` describes: the odometry's stages, and inside a magic front-end MagicPoint,
+    MagicWarp and matching; the marginal covariance is off (it is only for the log). Frames are rendered
+    as they go, so a long run holds one at a time. Runs longer than ``EARLY_FRAME`` frames also report
+    resident memory (MB) and the graph's milliseconds per frame (mean over ``WINDOW`` frames) at frame
+    ``EARLY_FRAME`` and at the end. Time it on one torch thread (the CLI sets it)."""
     tracker = make_tracker(tracker_config, seed)
     odometry = Odometry(tracker, OdometryConfig(covariance=False))
     stages: dict[str, list[float]] = {}
-    for frame in rendered:
+    growth: dict[str, float] = {}
+    scenario = Scenario(ScenarioConfig(frames=frames, seed=seed))
+    for index, frame in enumerate(progress_bar(simulated_frames(scenario), total=frames, unit="frame")):
         timings = odometry.process(frame).timings_ms
         for name, ms in [*tracker.timings_ms.items(), *((f"odometry.{k}", v) for k, v in timings.items())]:
             stages.setdefault(name, []).append(ms)
+        if frames > EARLY_FRAME and index + 1 in (EARLY_FRAME, frames):
+            at = "end" if index + 1 == frames else str(EARLY_FRAME)
+            growth[f"memory_mb@{at}"] = resident_mb()
+            growth[f"graph_ms@{at}"] = float(np.mean(stages["odometry.graph"][-WINDOW:]))
     means = {name: float(np.mean(values)) for name, values in stages.items()}
     means["per_frame_total"] = sum(v for k, v in means.items() if k.startswith("odometry."))
     means["fps"] = 1e3 / means["per_frame_total"]
-    return means
+    return means | growth

@@ -145,7 +145,8 @@ def labelling_key(config: AdaptConfig, detector: Path, training: list[photos.Pho
     options and the seed."""
     inputs = {"views", "warps", "label_warp", "erode", "label_threshold", "label_top_k", "size", "seed"}
     options = {k: v for k, v in asdict(config).items() if k in inputs}
-    return {"detector": _file_digest(detector), "photos": [p.name for p in training], "round": round_, **options}
+    key = {"detector": _file_digest(detector), "photos": [p.name for p in training], "round": round_, **options}
+    return json.loads(json.dumps(key))  # as it reads back from disk (tuples become lists)
 
 
 class Photographs:
