@@ -83,7 +83,7 @@ def raw_records(path: str | Path, damage: Damage) -> Iterator[RawMessage | Metad
     check_log(path)
     schemas, channels = _summary_definitions(path)
     chunks, orphans = 0, 0
-    with open(path, "rb") as f:
+    with open(path, "rb") as f:  # definitions in the data section (CRC-checked) replace the summary's
         records = StreamReader(f, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES).records
         while True:
             try:
@@ -189,6 +189,8 @@ def _apply(frame: dict, topic: str, message) -> None:
     """Store one decoded message into the frame being assembled."""
     if topic == "/camera/image":
         frame["image"] = cv2.imdecode(np.frombuffer(bytes(message.data), np.uint8), cv2.IMREAD_GRAYSCALE)
+        if frame["image"] is None:
+            raise ValueError("the image does not decode")
     elif topic == "/camera/camera_info":
         frame["K"] = np.array(message.k, np.float64).reshape(3, 3)
     elif topic == "/groundtruth/pose":
@@ -216,6 +218,10 @@ def _apply(frame: dict, topic: str, message) -> None:
         )
 
 
+UNDECODABLE = (ValueError, struct.error, IndexError, KeyError, TypeError, AttributeError, McapError, cv2.error)
+"""What decoding a damaged message or message definition can raise (UnicodeDecodeError is a ValueError)."""
+
+
 class _Decoders:
     """CDR decoders per schema, made once."""
 
@@ -239,10 +245,15 @@ def read_frames(path: str | Path) -> Iterator[LogFrame]:
     path = Path(path)
     damage, decoders, count = Damage(), _Decoders(), 0
     for messages in frame_messages(path, damage):
-        parts: dict = {}
-        for raw in messages:
-            _apply(parts, raw.channel.topic, decoders.decode(raw))
-        yield _complete(path, messages[0].message.log_time, parts)
+        stamp, parts = messages[0].message.log_time, {}
+        try:
+            for raw in messages:
+                _apply(parts, raw.channel.topic, decoders.decode(raw))
+        except UNDECODABLE as error:  # a damaged definition or message that passed the checks
+            damage.problems.append(f"the frame at {stamp / 1e9:.3f} s does not decode ({type(error).__name__})")
+            damage.dropped_frames += 1
+            continue
+        yield _complete(path, stamp, parts)
         count += 1
     if not count and (damage.problems or damage.dropped_frames):
         raise LogError(f"no whole frame could be read: {damage.report(path, count)}")
