@@ -121,6 +121,7 @@ def test_cli_defaults_are_the_config_defaults():
             assert {f.name for f in dataclasses.fields(config)} >= set(names)
 
 
+@pytest.mark.slow
 def test_python_m_deepslam_and_version(capsys):
     import subprocess
     import sys

@@ -68,6 +68,7 @@ def test_mcap_library_lists_every_channel_with_its_schema(oracle_log):
         assert summary.channels and all(c.message_encoding == "cdr" for c in summary.channels.values())
 
 
+@pytest.mark.external
 def test_evo_agrees_with_deepslam_drift(oracle_log, tmp_path):
     path, _ = oracle_log
     _, truth, estimate = analysis.load_trajectories(path)
