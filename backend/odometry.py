@@ -32,13 +32,15 @@ SCALES: tuple[str, ...] = get_args(Scale)
 @dataclass
 class InputFrame:
     """image uint8 (H, W); K (3, 3); stamp_ns int; T_world_cam (4, 4) ground truth or None;
-    truth: landmark projections for the oracle front-end, or None."""
+    truth: landmark projections for the oracle front-end, or None; depth (H, W) true z per pixel, or
+    None (for measuring the front-end against the simulator; the odometry does not read it)."""
 
     image: np.ndarray
     K: np.ndarray
     stamp_ns: int
     T_world_cam: np.ndarray | None = None
     truth: Truth | None = None
+    depth: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,7 @@ class OdometryConfig:
     )
     min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
     min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
+    reinitialise_after: int = 3  # this many lost frames in a row: the current frame becomes the keyframe
     covariance: bool = True  # compute the latest pose's marginal covariance every frame
     graph: GraphConfig = GraphConfig()  # the pose graph's noise and window
 
@@ -84,6 +87,8 @@ class OdometryConfig:
             )
         if self.plane_distance is not None and not self.plane_distance > 0:
             raise ValueError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
+        if self.reinitialise_after < 1:
+            raise ValueError(f"reinitialise_after must be at least 1, got {self.reinitialise_after}")
 
 
 @dataclass(frozen=True)
@@ -102,7 +107,8 @@ class FrameResult:
     the first), the current estimate ``T_world_cam`` (4, 4), its covariance (6, 6) or None,
     the correspondences (K, 2) as indices into the reference keyframe's and this frame's tracks, the
     scaled measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of that reference
-    keyframe, and stage timings."""
+    keyframe, and stage timings. ``lost``: no relative pose could be measured (``relative.reason`` says
+    why), so the estimate is a guess (no motion since the previous frame)."""
 
     index: int
     tracks: Tracks
@@ -113,6 +119,10 @@ class FrameResult:
     T_ref_cur: np.ndarray | None = None
     reference: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def lost(self) -> bool:
+        return self.relative is not None and not self.relative.ok
 
 
 def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
@@ -136,6 +146,7 @@ class Odometry:
         self.last_translation: np.ndarray | None = None
         self.model = config.method  # "auto" until a wide-baseline pair has chosen H or E
         self.keyframe, self.previous_keyframe = 0, None
+        self.lost_in_a_row = 0
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -221,7 +232,10 @@ class Odometry:
         self.graph.update(keep=[key for key in (self.keyframe, self.previous_keyframe) if key is not None])
         current = self.keyframe
         current_pairs = shared_tracks(self.history[current][1], tracks)
-        if (
+        self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
+        if self.lost_in_a_row >= self.config.reinitialise_after:  # tracking starts again from this frame
+            self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
+        elif (
             self._parallax(current, k, current_pairs) >= self.config.keyframe_parallax
             or len(current_pairs) < self.config.min_shared_tracks
         ):

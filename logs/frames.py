@@ -22,6 +22,20 @@ class Correspondences:
 
 
 @dataclass
+class FrameDiagnostics:
+    """How one frame went: tracks reported, inliers of its relative pose, whether it was lost (no
+    relative pose: the estimate is a guess) and why, the median error (px) of its tracks against the
+    simulator's truth and the position error (m) of its estimate; NaN where there is no truth."""
+
+    tracks: int
+    inliers: int
+    lost: bool
+    reason: str = ""
+    correspondence_error_px: float = float("nan")
+    position_error_m: float = float("nan")
+
+
+@dataclass
 class LogFrame:
     """One frame of a run. Poses are 4x4 ``T_world_cam``; ``covariance`` (6, 6) is gtsam's marginal
     of the estimate (rotation first, body frame); ``tracks`` (N, 4) [x, y, score, id]."""
@@ -34,6 +48,7 @@ class LogFrame:
     covariance: np.ndarray | None = None
     tracks: np.ndarray | None = None
     correspondences: Correspondences | None = None
+    diagnostics: FrameDiagnostics | None = None
 
 
 def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_ros2.decoder import DecoderFactory
 
-from deepslam.logs.frames import Correspondences, LogFrame, pose_matrix
+from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame, pose_matrix
 from deepslam.logs.schemas import FRAME_TOPICS
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -90,7 +90,7 @@ def raw_records(path: str | Path, damage: Damage) -> Iterator[RawMessage | Metad
                 record = next(records)
             except StopIteration:
                 return
-            except (McapError, EOFError, ValueError, OSError, UnicodeDecodeError) as error:
+            except (McapError, EOFError, ValueError, OSError, struct.error) as error:
                 damage.complete = False
                 cause = "the file ends" if "EndOfFile" in type(error).__name__ else f"unreadable ({error})"
                 damage.problems.append(f"truncated: {cause} after chunk {chunks}")
@@ -207,6 +207,11 @@ def _apply(frame: dict, topic: str, message) -> None:
             ],
             1,
         )
+    elif topic == "/diagnostics/frame":
+        frame["diagnostics"] = FrameDiagnostics(
+            int(message.tracks), int(message.inliers), bool(message.lost), message.reason,
+            float(message.correspondence_error_px), float(message.position_error_m),
+        )  # fmt: skip
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(
             _stamp(message.reference_stamp),
@@ -216,10 +221,6 @@ def _apply(frame: dict, topic: str, message) -> None:
             int(message.inliers),
             np.asarray(message.t_ref_cur, np.float64).reshape(4, 4),
         )
-
-
-UNDECODABLE = (ValueError, struct.error, IndexError, KeyError, TypeError, AttributeError, McapError, cv2.error)
-"""What decoding a damaged message or message definition can raise (UnicodeDecodeError is a ValueError)."""
 
 
 class _Decoders:
@@ -249,7 +250,7 @@ def read_frames(path: str | Path) -> Iterator[LogFrame]:
         try:
             for raw in messages:
                 _apply(parts, raw.channel.topic, decoders.decode(raw))
-        except UNDECODABLE as error:  # a damaged definition or message that passed the checks
+        except Exception as error:  # noqa: BLE001 - the decoders parse damaged bytes: any failure drops the frame
             damage.problems.append(f"the frame at {stamp / 1e9:.3f} s does not decode ({type(error).__name__})")
             damage.dropped_frames += 1
             continue
@@ -278,6 +279,7 @@ def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
         None,
         parts.get("tracks"),
         parts.get("correspondences"),
+        parts.get("diagnostics"),
     )
 
 

@@ -32,6 +32,11 @@ _DEFINITIONS = {
         "# tracked image points of one frame (pixels, top-left pixel centre at 0,0)\n"
         "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"
     ),
+    "deepslam_msgs/FrameDiagnostics": (
+        "# how the front-end and odometry did on one frame; NaN where a figure needs truth the run lacks\n"
+        "std_msgs/Header header\nuint32 tracks\nuint32 inliers\nbool lost\nstring reason\n"
+        "float64 correspondence_error_px\nfloat64 position_error_m"
+    ),
     "deepslam_msgs/Correspondences": (
         "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"
         "std_msgs/Header header\nbuiltin_interfaces/Time reference_stamp\nuint32[] reference_index\n"
@@ -52,6 +57,7 @@ _DEPENDENCIES = {
     "sensor_msgs/CameraInfo": ["std_msgs/Header", "sensor_msgs/RegionOfInterest"],
     "deepslam_msgs/Tracks": ["std_msgs/Header"],
     "deepslam_msgs/Correspondences": ["std_msgs/Header", "builtin_interfaces/Time"],
+    "deepslam_msgs/FrameDiagnostics": ["std_msgs/Header"],
 }
 
 
@@ -89,6 +95,7 @@ TOPICS = {
     "/tf": "tf2_msgs/TFMessage",
     "/frontend/tracks": "deepslam_msgs/Tracks",
     "/frontend/correspondences": "deepslam_msgs/Correspondences",
+    "/diagnostics/frame": "deepslam_msgs/FrameDiagnostics",
 }
 """Every topic a run writes, with its message type. Ground truth is absent in logs of real data."""
 

@@ -224,6 +224,12 @@ class LogWriter:
                 },
                 t,
             )
+        d = frame.diagnostics
+        if d is not None:
+            self._put("/diagnostics/frame", {"header": _header(t, CAMERA_FRAME), "tracks": int(d.tracks),
+                      "inliers": int(d.inliers), "lost": bool(d.lost), "reason": d.reason,
+                      "correspondence_error_px": float(d.correspondence_error_px),
+                      "position_error_m": float(d.position_error_m)}, t)  # fmt: skip
         self.frames += 1
         self._file.flush()
 

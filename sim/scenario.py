@@ -74,6 +74,7 @@ class SimFrame:
     T_world_cam: np.ndarray
     landmark_ids: np.ndarray
     landmark_pixels: np.ndarray
+    depth: np.ndarray  # float32 (H, W): z of the surface seen at each pixel (inf where nothing)
 
 
 class Scenario:
@@ -101,4 +102,4 @@ class Scenario:
         for index, (T, stamp) in enumerate(zip(self.trajectory.poses, self.trajectory.stamps_ns, strict=False)):
             light = 1.0 + c.lighting * np.sin(2 * np.pi * index / max(c.frames, 2))
             frame = self.world.render(T, self.K, c.size, rng, c.noise, light)
-            yield SimFrame(frame.image, self.K, int(stamp), T, frame.landmark_ids, frame.landmark_pixels)
+            yield SimFrame(frame.image, self.K, int(stamp), T, frame.landmark_ids, frame.landmark_pixels, frame.depth)

@@ -157,20 +157,46 @@ def test_drift_metrics(rng):
 def test_planar_world_with_oracle_recovers_the_trajectory():
     scenario = Scenario(ScenarioConfig(world="plane", frames=30))
     odometry = Odometry(OracleTracker(noise_px=0.0), OdometryConfig(scale="gt"))
-    estimate, truth = run_frames(simulated_frames(scenario), odometry, progress=False)
-    assert drift.ate_rmse(estimate, truth) < 1e-3
+    output = run_frames(simulated_frames(scenario), odometry, progress=False)
+    assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
     assert odometry.model == "homography"
+    # exact projections: every track error against the depth buffer is zero, nothing is lost
+    assert len(output.track_errors) > 100 and np.abs(output.track_errors).max() < 1e-3
+    assert not any(d.lost for d in output.diagnostics) and output.summary()["lost_frames"] == 0
+
+
+def test_track_errors_measure_pixel_noise_against_the_truth():
+    scenario = Scenario(ScenarioConfig(world="room", frames=12))
+    output = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=1.0)), progress=False)
+    # two independent 1 px Gaussian offsets: the difference has sigma sqrt(2); median radius 1.18 sqrt(2)
+    assert 1.3 < output.summary()["track_error_px"] < 2.1
 
 
 def test_plane_scale_needs_no_ground_truth_steps():
     scenario = Scenario(ScenarioConfig(world="plane", frames=20))
     config = OdometryConfig(scale="plane", plane_distance=scenario.plane_distance())
-    estimate, truth = run_frames(
-        simulated_frames(scenario), Odometry(OracleTracker(noise_px=0.0), config), progress=False
-    )
-    assert drift.ate_rmse(estimate, truth) < 1e-3
+    output = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=0.0), config), progress=False)
+    assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
     with pytest.raises(ValueError, match="distance"):
         Odometry(OracleTracker(), OdometryConfig(scale="plane"))
+
+
+def test_lost_frames_are_flagged_and_tracking_reinitialises():
+    class Blind(OracleTracker):
+        """Sees the landmarks except in frames 10-15, where it reports nothing."""
+
+        def track(self, image, truth=None):
+            self.frame = getattr(self, "frame", -1) + 1
+            tracks = super().track(image, truth)
+            return type(tracks).empty() if 10 <= self.frame <= 15 else tracks
+
+    scenario = Scenario(ScenarioConfig(world="plane", frames=30))
+    odometry = Odometry(Blind(noise_px=0.0), OdometryConfig(reinitialise_after=3))
+    output = run_frames(simulated_frames(scenario), odometry, progress=False)
+    lost = [i for i, d in enumerate(output.diagnostics) if d.lost]
+    assert lost[:6] == list(range(10, 16)) and "matched points" in output.diagnostics[10].reason
+    assert output.summary()["lost_frames"] == len(lost)
+    assert not output.diagnostics[-1].lost  # tracking picked up again after re-initialising
 
 
 def test_pipeline_matrix_averages_its_seeds_and_keeps_each():

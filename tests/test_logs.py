@@ -52,6 +52,11 @@ def test_run_reads_back_bit_for_bit(oracle_log):
         assert frame.image.dtype == np.uint8 and frame.image.shape == (120, 160)
         assert frame.tracks.shape[1] == 4
     assert frames[0].correspondences is None and frames[1].correspondences.model in ("homography", "essential")
+    for frame, diagnostics in zip(frames, result["diagnostics"], strict=True):  # per-frame figures, as computed
+        assert frame.diagnostics.tracks == diagnostics.tracks == len(frame.tracks) and not frame.diagnostics.lost
+        assert frame.diagnostics.position_error_m == pytest.approx(diagnostics.position_error_m)
+    assert np.isnan(frames[0].diagnostics.correspondence_error_px)  # nothing tracked into the first frame
+    assert 0.3 < np.nanmedian([f.diagnostics.correspondence_error_px for f in frames]) < 1.2  # 0.5 px noise
     meta = read_metadata(path)
     assert meta["frontend"] == "oracle" and meta["scenario"]["seed"] == 3 and meta["version"] == "test"
 

@@ -24,16 +24,25 @@ def load_trajectories(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.array(stamps, np.int64), np.stack(truth), np.stack(estimate)
 
 
+def lost_frames(path: str | Path) -> int | None:
+    """How many frames of a log were lost (no relative pose); None for a log without diagnostics."""
+    flags = [frame.diagnostics.lost for frame in read_frames(path) if frame.diagnostics is not None]
+    return sum(flags) if flags else None
+
+
 def analyse(paths: list[str | Path], delta: int = 1) -> dict[str, dict]:
-    """Drift figures per log, with its front-end and scale method from the log's metadata."""
+    """Drift figures per log, with its front-end and scale method from the log's metadata and its lost
+    frames (-1 where the log does not say)."""
     results = {}
     for path in paths:
         _, truth, estimate = load_trajectories(path)
         meta = read_metadata(path)
+        lost = lost_frames(path)
         results[str(path)] = {
             **drift.summary(estimate, truth, delta),
             "frontend": meta.get("frontend", "?"),
             "scale": meta.get("odometry", {}).get("scale", "?"),
+            "lost_frames": -1 if lost is None else lost,
         }
     return results
 
@@ -41,14 +50,15 @@ def analyse(paths: list[str | Path], delta: int = 1) -> dict[str, dict]:
 def table_lines(results: dict[str, dict]) -> list[str]:
     header = (
         f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE t':>8} {'RPE deg':>8} "
-        f"{'final %':>8} {'path m':>7}"
+        f"{'final %':>8} {'path m':>7} {'lost':>5}"
     )
     rows = [header]
     for path, r in results.items():
         rows.append(
             f"{Path(path).name[-28:]:<28} {r['frontend']:<9} {r['scale']:<6} "
             f"{r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
-            f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} {r['path_length']:>7.2f}"
+            f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} {r['path_length']:>7.2f} "
+            f"{r['lost_frames'] if r['lost_frames'] >= 0 else '?':>5}"
         )
     return rows
 

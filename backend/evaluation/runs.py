@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
+import cv2
 import numpy as np
 
 from deepslam.backend import drift
 from deepslam.backend.odometry import FrameResult, InputFrame, Odometry, OdometryConfig
-from deepslam.frontend.tracking import Tracker, TrackerConfig, Truth, make_tracker
+from deepslam.frontend.tracking import Tracker, TrackerConfig, Tracks, Truth, make_tracker
+from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
 from deepslam.progress import progress_bar
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -23,10 +25,56 @@ def _tracker(config: TrackerConfig, odometry: OdometryConfig, seed: int = 0) -> 
 
 def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
     for f in scenario:
-        yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels))
+        yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels), f.depth)
 
 
-Sink = Callable[[InputFrame, FrameResult], None]
+def track_errors(previous: InputFrame, tracks_before: Tracks, frame: InputFrame, tracks: Tracks) -> np.ndarray:
+    """Pixel errors (M,) of the tracks followed from ``previous`` to ``frame``: each point of the earlier
+    frame back-projected with the true depth, moved by the true poses and projected, against where the
+    front-end put it. Empty without depth or poses (real data)."""
+    if previous.depth is None or previous.T_world_cam is None or frame.T_world_cam is None:
+        return np.zeros(0)
+    _, before, after = np.intersect1d(tracks_before.ids, tracks.ids, return_indices=True)
+    if len(before) == 0:
+        return np.zeros(0)
+    points = tracks_before.points[before]
+    inverse_depth = np.where(np.isfinite(previous.depth), 1.0 / previous.depth, 0.0).astype(np.float32)
+    sampled = cv2.remap(
+        inverse_depth, *points.astype(np.float32).reshape(-1, 1, 2).transpose(2, 0, 1), cv2.INTER_LINEAR
+    )
+    z = 1.0 / sampled.ravel().astype(np.float64)  # 1/z is linear across a plane's pixels, z is not
+    seen = np.isfinite(z) & (sampled.ravel() > 0)
+    rays = np.c_[points[seen], np.ones(seen.sum())] @ np.linalg.inv(previous.K).T
+    world = rays * z[seen, None] @ previous.T_world_cam[:3, :3].T + previous.T_world_cam[:3, 3]
+    T_cam_world = np.linalg.inv(frame.T_world_cam)
+    camera = world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    projected = camera @ frame.K.T
+    projected = projected[:, :2] / projected[:, 2:3]
+    return np.linalg.norm(projected - tracks.points[after][seen], axis=1)
+
+
+Sink = Callable[[InputFrame, FrameResult, FrameDiagnostics], None]
+
+
+@dataclass
+class RunOutput:
+    """What a run produced: online estimates (N, 4, 4), each frame's pose as the graph had it when the
+    frame was done (the poses that are logged); ground truth (N, 4, 4) or None; per-frame diagnostics;
+    every track's error against truth (px, empty without truth)."""
+
+    estimate: np.ndarray
+    truth: np.ndarray | None
+    diagnostics: list[FrameDiagnostics]
+    track_errors: np.ndarray
+
+    def summary(self) -> dict:
+        """Drift figures (with truth), lost frames and the median track error against truth."""
+        figures = drift.summary(self.estimate, self.truth) if self.truth is not None else {}
+        errors = self.track_errors
+        return figures | {
+            "lost_frames": sum(d.lost for d in self.diagnostics),
+            "track_error_px": float(np.median(errors)) if len(errors) else float("nan"),
+        }
 
 
 def run_frames(
@@ -35,24 +83,40 @@ def run_frames(
     sink: Sink | None = None,
     total: int | None = None,
     progress: bool = True,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Process frames in order, handing each (frame, result) to ``sink`` as soon as it is done.
-
-    Returns (online estimates (N, 4, 4): each frame's pose as the graph had it when the frame was
-    done, the poses that are logged; ground truth (N, 4, 4) or None). ``odometry.poses()`` has the
-    final smoothed trajectory.
-    """
-    truth, online = [], []
+) -> RunOutput:
+    """Process frames in order, handing each (frame, result, diagnostics) to ``sink`` as soon as it is
+    done. ``odometry.poses()`` has the final smoothed trajectory."""
+    truth, online, diagnostics, errors = [], [], [], []
+    previous: tuple[InputFrame, Tracks] | None = None
     for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
         result = odometry.process(frame)
+        frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
+        position_error = (
+            float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
+            if frame.T_world_cam is not None
+            else float("nan")
+        )
+        relative = result.relative
+        diagnostics.append(
+            FrameDiagnostics(
+                len(result.tracks.ids),
+                int(relative.inliers.sum()) if relative is not None else 0,
+                result.lost,
+                relative.reason if relative is not None else "",
+                float(np.median(frame_errors)) if len(frame_errors) else float("nan"),
+                position_error,
+            )
+        )
+        errors.append(frame_errors)
         truth.append(frame.T_world_cam)
         online.append(result.T_world_cam)
         if sink is not None:
-            sink(frame, result)
+            sink(frame, result, diagnostics[-1])
+        previous = (replace(frame, image=None, truth=None), result.tracks)  # what the next frame needs
     if not online:
         raise ValueError("no frames to process")
     has_truth = all(T is not None for T in truth)
-    return np.stack(online), (np.stack(truth) if has_truth else None)
+    return RunOutput(np.stack(online), np.stack(truth) if has_truth else None, diagnostics, np.concatenate(errors))
 
 
 def simulate(
@@ -77,7 +141,7 @@ def simulate(
     odometry = Odometry(_tracker(tracker_config, odometry_config, scenario_config.seed), odometry_config)
     frames = simulated_frames(scenario)
     if out is None:
-        estimate, truth = run_frames(frames, odometry, None, len(scenario), progress)
+        output = run_frames(frames, odometry, None, len(scenario), progress)
     else:
         meta = {
             "scenario": asdict(scenario_config),
@@ -86,14 +150,15 @@ def simulate(
             "tracker": asdict(tracker_config),
             **(metadata or {}),
         }
-        estimate, truth = run_logged(frames, odometry, out, meta, len(scenario), progress)
+        output = run_logged(frames, odometry, out, meta, len(scenario), progress)
     return {
-        "estimate": estimate,
-        "truth": truth,
-        "drift": drift.summary(estimate, truth),
-        "smoothed_ate_se3": drift.ate_rmse(odometry.poses(), truth),
+        "estimate": output.estimate,
+        "truth": output.truth,
+        "drift": output.summary(),
+        "smoothed_ate_se3": drift.ate_rmse(odometry.poses(), output.truth),
         "scale": odometry_config.scale,
         "odometry": odometry,
+        "diagnostics": output.diagnostics,
     }
 
 
@@ -122,19 +187,20 @@ def replay(
         "tracker": asdict(tracker_config),
         **(metadata or {}),
     }
-    estimate, truth = run_logged(logged_frames(log), odometry, out, meta, None, progress)
+    output = run_logged(logged_frames(log), odometry, out, meta, None, progress)
     return {
-        "estimate": estimate,
-        "truth": truth,
+        "estimate": output.estimate,
+        "truth": output.truth,
         "scale": odometry_config.scale,
-        "drift": drift.summary(estimate, truth) if truth is not None else None,
+        "drift": output.summary() if output.truth is not None else None,
+        "diagnostics": output.diagnostics,
     }
 
 
-def to_log_frame(frame: InputFrame, result: FrameResult, reference_stamp_ns: int | None):
+def to_log_frame(
+    frame: InputFrame, result: FrameResult, reference_stamp_ns: int | None, diagnostics: FrameDiagnostics
+) -> LogFrame:
     """The log record of one processed frame (the format lives in ``logs``; the content here)."""
-    from deepslam.logs.frames import Correspondences, LogFrame
-
     tracks = (
         np.column_stack([result.tracks.points, result.tracks.scores, result.tracks.ids])
         if len(result.tracks.ids)
@@ -159,6 +225,7 @@ def to_log_frame(frame: InputFrame, result: FrameResult, reference_stamp_ns: int
         result.covariance,
         tracks,
         correspondences,
+        diagnostics,
     )
 
 
@@ -169,7 +236,7 @@ def run_logged(
     metadata: dict,
     total: int | None = None,
     progress: bool = True,
-) -> tuple[np.ndarray, np.ndarray | None]:
+) -> RunOutput:
     """``run_frames`` writing every frame to an MCAP log at ``out`` as it is processed. The log is
     finished cleanly on Ctrl-C (and then the interruption propagates)."""
     from deepslam.logs.writer import LogWriter
@@ -177,9 +244,9 @@ def run_logged(
     stamps: list[int] = []
     with LogWriter(out, metadata) as log:
 
-        def sink(frame: InputFrame, result: FrameResult) -> None:
+        def sink(frame: InputFrame, result: FrameResult, diagnostics: FrameDiagnostics) -> None:
             stamps.append(frame.stamp_ns)
-            log.write(to_log_frame(frame, result, stamps[result.reference]))
+            log.write(to_log_frame(frame, result, stamps[result.reference], diagnostics))
 
         return run_frames(frames, odometry, sink, total, progress)
 
