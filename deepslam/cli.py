@@ -105,11 +105,11 @@ def _detectors(names: list[str] | None, **extraction) -> dict:
 
 
 def _eval_pipeline(args: argparse.Namespace) -> None:
-    from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix
+    from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix, save_plots
     from deepslam.frontend.tracking import TrackerConfig
 
     rows = pipeline_matrix(_config(args, SweepConfig), _config(args, TrackerConfig))
-    _write_result(args.out, "pipeline", {"rows": rows}, matrix_lines(rows))
+    _write_result(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), save_plots)
 
 
 def _bench(args: argparse.Namespace) -> None:

@@ -20,6 +20,7 @@ from deepslam.sim import noise as noise_module
 from deepslam.sim.camera import invert, project, transform
 from deepslam.sim.shapes import CATEGORIES, render
 
+CORNER_POOR = ("grass", "gravel")  # textures without corners: natural surfaces a front-end must still cope with
 WorldName = Literal["plane", "room"]
 WORLDS: tuple[str, ...] = get_args(WorldName)
 _PHOTOS = (
@@ -46,6 +47,7 @@ class Surface:
     axis_u: np.ndarray
     axis_v: np.ndarray
     texture: np.ndarray  # uint8 (h, w), texel (0, 0) at u = v = 0
+    texture_name: str = ""  # the photograph's name, or "mosaic"
 
     @property
     def normal(self) -> np.ndarray:
@@ -73,6 +75,16 @@ class World:
     landmarks: np.ndarray
     target: np.ndarray = field(default_factory=lambda: np.zeros(3))
     dominant_plane: tuple[np.ndarray, float] | None = None  # (unit normal n, offset c): n . X = c
+
+    @property
+    def texture(self) -> str:
+        """The name of the main surface's texture (the plane's wall, the room's back wall)."""
+        return self.surfaces[0].texture_name
+
+    @property
+    def corner_poor(self) -> bool:
+        """Whether the main surface has a texture without corners (``CORNER_POOR``)."""
+        return self.texture in CORNER_POOR
 
     def render(
         self,
@@ -147,17 +159,23 @@ def photo(name: str, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_AREA)
 
 
-def _texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
-    """A texture: a real photograph shipped with scikit-image (2/3 of the time) or a shapes render."""
+def _texture(rng: np.random.Generator, size: int = 384, tiles: int = 4) -> tuple[np.ndarray, str]:
+    """A texture and its name: a real photograph shipped with scikit-image (2/3 of the time) or a mosaic
+    of ``tiles`` x ``tiles`` Synthetic Shapes renders (each a tile of its own category and background)."""
     if rng.random() < 2 / 3:
-        return photo(str(rng.choice(_PHOTOS)), (size, size))
-    image, _ = render(str(rng.choice(CATEGORIES[:8])), rng, (size // 2, size // 2))
-    return cv2.resize(image, (size, size), interpolation=cv2.INTER_LINEAR)
+        name = str(rng.choice(_PHOTOS))
+        return photo(name, (size, size)), name
+    tile = size // tiles
+    rows = [
+        np.hstack([render(str(rng.choice(CATEGORIES[:8])), rng, (tile, tile))[0] for _ in range(tiles)])
+        for _ in range(tiles)
+    ]
+    return np.vstack(rows), "mosaic"
 
 
 def _rectangle(centre, axis_u, axis_v, rng) -> Surface:
     centre, axis_u, axis_v = (np.asarray(a, np.float64) for a in (centre, axis_u, axis_v))
-    return Surface(centre - axis_u / 2 - axis_v / 2, axis_u, axis_v, _texture(rng))
+    return Surface(centre - axis_u / 2 - axis_v / 2, axis_u, axis_v, *_texture(rng))
 
 
 def _box(centre, size, rng) -> list[Surface]:

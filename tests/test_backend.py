@@ -199,14 +199,24 @@ def test_lost_frames_are_flagged_and_tracking_reinitialises():
     assert not output.diagnostics[-1].lost  # tracking picked up again after re-initialising
 
 
-def test_pipeline_matrix_averages_its_seeds_and_keeps_each():
-    config = SweepConfig(worlds=("plane",), frontends=("oracle",), noise=(0.0,), frames=8, seeds=2)
+def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apart(tmp_path):
+    from deepslam.backend.evaluation.sweep import save_plots
+
+    config = SweepConfig(
+        worlds=("plane",), trajectories=("circle",), frontends=("oracle",), noise=(0.0, 0.5), lighting=(0.0,),
+        frames=8, seeds=5,
+    )  # fmt: skip
     rows = pipeline_matrix(config, progress=False)
-    assert len(rows) == 1 and rows[0]["seeds"] == [0, 1]
-    per_seed = rows[0]["ate_se3_per_seed"]
-    assert len(per_seed) == 2 and per_seed[0] != per_seed[1]  # different seeds are different runs
-    assert rows[0]["ate_se3"] == pytest.approx(np.mean(per_seed))
-    assert any(line.split()[-2:] == [f"{v:.4f}" for v in per_seed] for line in matrix_lines(rows))
+    assert len(rows) == 2 and [r["noise"] for r in rows] == [0.0, 0.5]
+    runs = rows[0]["runs"]
+    assert [r["texture"] for r in runs] == ["page", "coffee", "brick", "grass", "mosaic"]  # named per seed
+    textured = [r["ate_se3"] for r in runs if not r["corner_poor"]]
+    assert rows[0]["median_ate_se3"] == pytest.approx(np.median(textured)) and len(textured) == 4
+    assert rows[0]["median_ate_se3_corner_poor"] == runs[3]["ate_se3"]  # grass, apart
+    assert rows[0]["failed"] == 0  # the oracle never drifts 5% of its path
+    lines = matrix_lines(rows)
+    assert "3 grass" in lines[4] and any(line.split()[-5:] == [f"{r['ate_se3']:.4f}" for r in runs] for line in lines)
+    assert [p.name for p in save_plots({"rows": rows}, tmp_path)] == ["pipeline_ate_vs_noise.png"]
 
 
 def test_make_tracker_sets_the_oracle_pixel_noise():

@@ -42,8 +42,8 @@ def track_errors(previous: InputFrame, tracks_before: Tracks, frame: InputFrame,
     sampled = cv2.remap(
         inverse_depth, *points.astype(np.float32).reshape(-1, 1, 2).transpose(2, 0, 1), cv2.INTER_LINEAR
     )
-    z = 1.0 / sampled.ravel().astype(np.float64)  # 1/z is linear across a plane's pixels, z is not
-    seen = np.isfinite(z) & (sampled.ravel() > 0)
+    seen = sampled.ravel() > 0  # 1/z is linear across a plane's pixels (z is not); 0 where nothing was hit
+    z = 1.0 / np.where(seen, sampled.ravel(), 1.0).astype(np.float64)
     rays = np.c_[points[seen], np.ones(seen.sum())] @ np.linalg.inv(previous.K).T
     world = rays * z[seen, None] @ previous.T_world_cam[:3, :3].T + previous.T_world_cam[:3, 3]
     T_cam_world = np.linalg.inv(frame.T_world_cam)

@@ -1,4 +1,9 @@
-"""Drift sweeps: every world x front-end x noise combination of simulated runs, over seeds."""
+"""Drift sweeps: simulated runs over worlds x trajectories x noise x lighting x front-ends, over seeds.
+
+Each seed makes its own world (textures, layout). Runs on a corner-poor main texture (grass, gravel) are
+summarised apart from those on photographs and Synthetic Shapes mosaics; a run fails when its ATE is
+over ``FAILED_SHARE`` of its path length.
+"""
 
 from __future__ import annotations
 
@@ -11,8 +16,10 @@ from deepslam.backend.odometry import OdometryConfig, Scale
 from deepslam.frontend.tracking import Frontend, TrackerConfig
 from deepslam.progress import progress_bar
 from deepslam.sim import trajectories
-from deepslam.sim.scenario import ScenarioConfig
+from deepslam.sim.scenario import Scenario, ScenarioConfig
 from deepslam.sim.world import WorldName
+
+FAILED_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -22,75 +29,152 @@ class SweepConfig:
     worlds: tuple[WorldName, ...] = field(
         default=("plane", "room"), metadata={"help": "simulated worlds: one textured wall and/or a room"}
     )
+    trajectories: tuple[trajectories.Kind, ...] = field(
+        default=("circle", "figure8", "line", "random"), metadata={"help": "camera paths"}
+    )
     frontends: tuple[Frontend, ...] = field(
         default=("oracle", "magic", "classical"),
         metadata={"help": "front-ends to compare (oracle: true projections with pixel noise, the reference)"},
     )
     noise: tuple[float, ...] = field(
-        default=(0.0, 1.0), metadata={"help": "photometric noise magnitudes s (0 clean, 1 full)", "min": 0, "max": 2}
+        default=(0.0, 0.25, 0.5, 1.0),
+        metadata={"help": "photometric noise magnitudes s (0 clean, 1 full)", "min": 0, "max": 2},
+    )
+    lighting: tuple[float, ...] = field(
+        default=(0.0, 0.3), metadata={"help": "amplitudes of a slow global brightness change", "min": 0, "max": 1}
     )
     frames: int = field(default=60, metadata={"help": "frames per run", "min": 2})
     seeds: int = field(
-        default=6,
-        metadata={"help": "runs per cell, seeds 0..N-1 (the worlds differ by seed: textures, layout)", "min": 1},
+        default=12,
+        metadata={"help": "runs per cell, seeds 0..N-1 (each seed its own world: textures, layout)", "min": 1},
     )
     scale: Scale = field(
         default="gt",
         metadata={"help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the plane"},
     )
-    trajectory: trajectories.Kind = field(default="circle", metadata={"help": "camera path"})
+
+    def cells(self) -> list[tuple]:
+        """(world, trajectory, noise, lighting, front-end) of every row, in table order."""
+        return [
+            (world, path, noise, light, frontend)
+            for world in self.worlds
+            for path in self.trajectories
+            for noise in self.noise
+            for light in self.lighting
+            for frontend in self.frontends
+        ]
+
+
+def _median(values: list[float]) -> float:
+    return float(np.median(values)) if values else float("nan")
+
+
+def run_cell(cell: tuple, seed: int, config: SweepConfig, tracker_config: TrackerConfig) -> dict:
+    """One run of a sweep: its drift figures, texture and whether it failed."""
+    world, path, noise, light, frontend = cell
+    scenario = ScenarioConfig(
+        world=world, trajectory=path, frames=config.frames, noise=noise, lighting=light, seed=seed
+    )
+    result = simulate(
+        scenario, replace(tracker_config, frontend=frontend), OdometryConfig(scale=config.scale), progress=False
+    )
+    built = Scenario(scenario).world
+    figures = result["drift"]
+    return {
+        "seed": seed,
+        "texture": built.texture,
+        "corner_poor": built.corner_poor,
+        "ate_se3": figures["ate_se3"],
+        "failed": bool(figures["ate_se3"] > FAILED_SHARE * figures["path_length"]),
+        "lost_frames": figures["lost_frames"],
+        "track_error_px": figures["track_error_px"],
+    }
 
 
 def pipeline_matrix(
     config: SweepConfig = SweepConfig(), tracker_config: TrackerConfig = TrackerConfig(), progress: bool = True
 ) -> list[dict]:
-    """Drift of every world x front-end x noise combination, averaged over seeds (every front-end with
-    the options of ``tracker_config``); each row also keeps its per-seed ATE SE3."""
-    worlds, frontends, noises, seeds = config.worlds, config.frontends, config.noise, tuple(range(config.seeds))
-    frames, scale, trajectory = config.frames, config.scale, config.trajectory
-    if not (worlds and frontends and noises and seeds):
-        raise ValueError("the drift matrix needs at least one world, front-end, noise magnitude and seed")
-    cells = [(world, noise, frontend) for world in worlds for noise in noises for frontend in frontends]
+    """One row per (world, trajectory, noise, lighting, front-end): the median ATE SE3 over seeds on
+    photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
+    cells, seeds = config.cells(), range(config.seeds)
+    if not cells:
+        raise ValueError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
     rows = []
-    with progress_bar(total=len(cells) * len(seeds), unit="run", disable=not progress) as bar:
-        for world, noise, frontend in cells:
+    with progress_bar(total=len(cells) * config.seeds, unit="run", disable=not progress) as bar:
+        for cell in cells:
             runs = []
             for seed in seeds:
-                bar.set_description(f"{world} noise {noise:g} {frontend} seed {seed}")
-                scenario = ScenarioConfig(world=world, trajectory=trajectory, frames=frames, noise=noise, seed=seed)
-                tracker = replace(tracker_config, frontend=frontend)
-                runs.append(simulate(scenario, tracker, OdometryConfig(scale=scale), progress=False)["drift"])
+                bar.set_description(" ".join(map(str, cell)) + f" seed {seed}")
+                runs.append(run_cell(cell, seed, config, tracker_config))
                 bar.update(1)
+            textured = [r["ate_se3"] for r in runs if not r["corner_poor"]]
+            world, path, noise, light, frontend = cell
             rows.append(
                 {
-                    "world": world,
-                    "noise": noise,
-                    "frontend": frontend,
-                    "scale": scale,
-                    **{
-                        k: float(np.mean([r[k] for r in runs]))
-                        for k in ("ate_se3", "ate_sim3", "rpe_trans", "rpe_rot_deg", "final_drift_pct")
-                    },
-                    "seeds": list(seeds),
-                    "ate_se3_per_seed": [r["ate_se3"] for r in runs],
+                    "world": world, "trajectory": path, "noise": noise, "lighting": light, "frontend": frontend,
+                    "scale": config.scale,
+                    "median_ate_se3": _median(textured),
+                    "median_ate_se3_corner_poor": _median([r["ate_se3"] for r in runs if r["corner_poor"]]),
+                    "failed": sum(r["failed"] for r in runs),
+                    "runs": runs,
                 }
-            )
+            )  # fmt: skip
     return rows
 
 
 def matrix_lines(rows: list[dict]) -> list[str]:
+    """The sweep as a table, then every run's ATE with its seed's texture."""
     lines = [
-        f"{'world':<6} {'noise':>5} {'frontend':<9} {'scale':<5} {'ATE SE3 m':>9} {'ATE Sim3 m':>10} {'RPE t m':>8} "
-        f"{'RPE deg':>8} {'final %':>8}"
+        f"{'world':<6} {'path':<8} {'noise':>5} {'light':>5} {'frontend':<9} {'ATE med m':>9} "
+        f"{'corner-poor':>11} {'failed':>7}"
     ]
     for r in rows:
         lines.append(
-            f"{r['world']:<6} {r['noise']:>5.1f} {r['frontend']:<9} {r['scale']:<5} {r['ate_se3']:>9.4f} "
-            f"{r['ate_sim3']:>10.4f} {r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f}"
+            f"{r['world']:<6} {r['trajectory']:<8} {r['noise']:>5.2f} {r['lighting']:>5.2f} {r['frontend']:<9} "
+            f"{r['median_ate_se3']:>9.4f} {r['median_ate_se3_corner_poor']:>11.4f} "
+            f"{r['failed']:>3}/{len(r['runs']):<3}"
         )
-    lines += ["", f"ATE SE3 m per seed ({', '.join(map(str, rows[0]['seeds']))}):"]
+    textures = ", ".join(f"{run['seed']} {run['texture']}" for run in rows[0]["runs"])
+    lines += ["", f"ATE SE3 m per seed (seed texture: {textures}):"]
     lines += [
-        f"{r['world']:<6} {r['noise']:>5.1f} {r['frontend']:<9} " + " ".join(f"{v:7.4f}" for v in r["ate_se3_per_seed"])
+        f"{r['world']:<6} {r['trajectory']:<8} {r['noise']:>5.2f} {r['lighting']:>5.2f} {r['frontend']:<9} "
+        + " ".join(f"{run['ate_se3']:7.4f}" for run in r["runs"])
         for r in rows
     ]
     return lines
+
+
+def save_plots(result: dict, out_dir) -> list:
+    """PNG: median ATE (photographs and mosaics) against noise, per front-end, one panel per world and
+    trajectory, lighting 0 solid and others dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = result["rows"]
+    panels = sorted({(r["world"], r["trajectory"]) for r in rows})
+    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.6), squeeze=False, sharey=True)
+    colours = {name: f"C{i}" for i, name in enumerate(sorted({r["frontend"] for r in rows}))}
+    for ax, (world, path) in zip(axes[0], panels, strict=True):
+        for (frontend, light), group in _groups(rows, world, path).items():
+            noise = [r["noise"] for r in group]
+            style = "-" if light == 0 else "--"
+            ax.plot(noise, [r["median_ate_se3"] for r in group], style, marker="o", color=colours[frontend],
+                    label=f"{frontend}" + (f" light {light:g}" if light else ""))  # fmt: skip
+        ax.set(title=f"{world}, {path}", xlabel="noise magnitude s", yscale="log")
+    axes[0][0].set_ylabel("median ATE SE3 (m)")
+    axes[0][-1].legend(fontsize=7)
+    fig.tight_layout()
+    path = out_dir / "pipeline_ate_vs_noise.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]
+
+
+def _groups(rows: list[dict], world: str, path: str) -> dict[tuple, list[dict]]:
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        if r["world"] == world and r["trajectory"] == path:
+            groups.setdefault((r["frontend"], r["lighting"]), []).append(r)
+    return {key: sorted(group, key=lambda r: r["noise"]) for key, group in groups.items()}
