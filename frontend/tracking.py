@@ -242,20 +242,26 @@ class OracleTracker(Tracker):
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """A front-end and its options; the defaults are the magic front-end's preset: MagicPoint at the
-    evaluation threshold 0.001 with at most 150 points (the oracle's budget), on the image enlarged
-    ``detector_scale`` times with grid shifts (four at scale 1, two above) and parabola sub-pixel peaks,
-    then MagicWarp refined by snapping. Every documented field is a ``deepslam run`` option."""
+    """A front-end and its options. The magic front-end runs MagicPoint at the evaluation threshold 0.001
+    with at most 150 points (the oracle's budget), then MagicWarp refined by snapping; its detector is
+    one of ``DETECTOR_PRESETS``. Every documented field is a ``deepslam run`` option."""
 
     frontend: Frontend = field(
         default="magic",
         metadata={"help": "magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections"},
     )
-    detector_scale: Literal[1, 2] = field(
-        default=2,
+    detector: Literal["S", "S-HA"] = field(
+        default="S",
         metadata={
-            "help": "MagicPoint detects on the image enlarged this many times (magic front-end); 2 tracks "
-            "photographed textures more accurately, 1 is faster and does better under heavy noise"
+            "help": "MagicPoint of the magic front-end: S (Synthetic Shapes only; on the image enlarged 2x with "
+            "two grid shifts) or S-HA (adapted to real photographs; one pass)"
+        },
+    )
+    detector_scale: Literal[1, 2] | None = field(
+        default=None,
+        metadata={
+            "help": "MagicPoint detects on the image enlarged this many times (default: the detector's preset; "
+            "S at scale 1 averages four grid shifts)"
         },
     )
     warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
@@ -281,20 +287,31 @@ class TrackerConfig:
     budget: int = 150  # points a front-end reports at most
 
 
+DETECTOR_PRESETS: dict[str, dict] = {
+    "S": {"upsample": 2, "grid_shifts": 2, "subpixel": "parabola"},  # S needs the work-arounds on photographs
+    "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "centroid"},  # one pass
+}
+"""How the magic front-end runs each MagicPoint; ``TrackerConfig.detector_scale`` overrides ``upsample``
+(S at scale 1 then averages four grid shifts)."""
+
+
+def magic_detector(config: TrackerConfig) -> MagicPoint:
+    """The shipped MagicPoint of ``config.detector`` as the magic front-end runs it."""
+    options = dict(DETECTOR_PRESETS[config.detector])
+    if config.detector_scale is not None:
+        options["upsample"] = config.detector_scale
+        if config.detector == "S":
+            options["grid_shifts"] = 4 if config.detector_scale == 1 else 2
+    return MagicPoint.pretrained(config.detector, threshold=0.001, top_k=config.budget, **options)
+
+
 def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = True) -> Tracker:
     """The front-end ``config`` describes, with the shipped networks for "magic"; ``carry_default`` is
     what ``config.carry`` None means (the caller knows whether poses come from the dominant plane)."""
     if config.frontend == "magic":
         from deepslam.frontend.magicwarp import MagicWarp
 
-        detector = MagicPoint.pretrained(
-            "S",
-            threshold=0.001,
-            top_k=config.budget,
-            grid_shifts=4 if config.detector_scale == 1 else 2,
-            subpixel="parabola",
-            upsample=config.detector_scale,
-        )
+        detector = magic_detector(config)
         carry = carry_default if config.carry is None else config.carry
         return MagicTracker(
             detector,

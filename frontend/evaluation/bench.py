@@ -57,7 +57,7 @@ def bench_detector(repeats: int = 100) -> list[dict]:
                     "size": f"{size[1]}x{size[0]}",
                     "forward_ms": forward,
                     "extract_ms": extraction,
-                    "paper_ms": PAPER_MS[(variant, size)],
+                    "paper_ms": PAPER_MS.get((variant, size), float("nan")),
                     "weights": "shipped" if shipped else "untrained",
                 }
             )
