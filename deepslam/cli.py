@@ -59,9 +59,21 @@ def _export(args: argparse.Namespace) -> None:
     log.info(f"wrote {args.out} (step {state['step']}, {args.out.stat().st_size / 1e6:.2f} MB)")
 
 
+def _check_folder(folder: Path) -> None:
+    """Fail before any work starts unless results can be written into ``folder`` (made if missing)."""
+    if folder.exists() and not folder.is_dir():
+        raise _UsageError(f"--out {folder} is a file, not a folder")
+    existing = folder
+    while not existing.exists():
+        existing = existing.parent
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise _UsageError(f"--out {folder}: cannot write under {existing}")
+
+
 def _write_result(out: Path, name: str, result: dict, lines: list[str], plots=None) -> None:
     """Print a result's table and save it as .txt and .json (and its plots) under ``out``."""
     print("\n".join(lines))
+    out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.txt").write_text("\n".join(lines) + "\n")
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
     for path in [*(plots(result, out) if plots else []), out / f"{name}.txt", out / f"{name}.json"]:
@@ -70,6 +82,8 @@ def _write_result(out: Path, name: str, result: dict, lines: list[str], plots=No
 
 def _eval_detector(args: argparse.Namespace) -> None:
     from deepslam.frontend.evaluation import detector as ev
+
+    _check_folder(args.out)
 
     chosen = _detectors(args.detectors, **ev.SHAPES_EXTRACTION)
     result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed)
@@ -82,12 +96,16 @@ def _eval_warp(args: argparse.Namespace) -> None:
     from deepslam.frontend.evaluation import warp as ev
     from deepslam.frontend.magicwarp import MagicWarp
 
+    _check_folder(args.out)
+
     result = ev.breakdown_table(MagicWarp.pretrained(args.weights), args.runs, args.seed)
     _write_result(args.out, "warp", result, ev.table_lines(result), ev.save_plots)
 
 
 def _eval_realimages(args: argparse.Namespace) -> None:
     from deepslam.frontend.evaluation import detector as ev
+
+    _check_folder(args.out)
 
     result = ev.static_repeatability(_detectors(args.detectors), args.frames, args.seed, jitter_px=args.jitter)
     name = f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages"
@@ -108,25 +126,30 @@ def _eval_pipeline(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix, save_plots
     from deepslam.frontend.tracking import TrackerConfig
 
+    _check_folder(args.out)
+
     rows = pipeline_matrix(_config(args, SweepConfig), _config(args, TrackerConfig))
     _write_result(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), save_plots)
 
 
 def _bench(args: argparse.Namespace) -> None:
+    _check_folder(args.out)
     if args.target == "pipeline":
         from deepslam.backend.evaluation.bench import bench_pipeline
         from deepslam.frontend.tracking import TrackerConfig
 
         timings = bench_pipeline(args.frames, tracker_config=_config(args, TrackerConfig))
-        for name, value in timings.items():
-            unit = "" if name == "fps" else "MB" if name.startswith("memory") else "ms"
-            print(f"  {name:<24} {value:8.2f} {unit}")
+        units = {name: "" if name == "fps" else "MB" if name.startswith("memory") else "ms" for name in timings}
+        lines = [f"  {name:<24} {value:8.2f} {units[name]}" for name, value in timings.items()]
+        _write_result(args.out, "bench_pipeline", timings, lines)
         return
     from deepslam.frontend.evaluation import bench
 
     rows = bench.bench_detector(args.repeats) if args.target == "detector" else bench.bench_warp(args.repeats)
-    for row in rows:
-        print("  " + "  ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
+    lines = [
+        "  " + "  ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()) for r in rows
+    ]
+    _write_result(args.out, f"bench_{args.target}", {"rows": rows}, lines)
 
 
 def _print_drift(drift: dict, scale: str) -> None:
@@ -361,6 +384,7 @@ def _bench_commands(commands) -> None:
     ):
         sub = _command(targets, target, text, _bench)
         sub.add_argument("--repeats", type=number_type(int, 1), default=100, help="timed repetitions (median reported)")
+        sub.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
     pipeline = _command(
         targets,
         "pipeline",
@@ -371,6 +395,7 @@ def _bench_commands(commands) -> None:
     pipeline.add_argument(
         "--frames", type=number_type(int, 2), default=60, help="frames of the simulated run, each timed once"
     )
+    pipeline.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -72,6 +72,7 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
             "argument --clean-share: expected a number",
         ),
         (["eval", "detector", "--detectors", "Nope", "--out", folder], "unknown or unavailable detectors ['Nope']"),
+        (["eval", "warp", "--out", __file__], "is a file, not a folder"),
     ]:
         with pytest.raises(SystemExit) as exit_info:
             main(argv)
