@@ -119,6 +119,7 @@ class FrameResult:
     T_ref_cur: np.ndarray | None = None
     reference: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
+    keyframe: bool = False  # this frame became a keyframe
 
     @property
     def lost(self) -> bool:
@@ -211,6 +212,7 @@ class Odometry:
                 None,
                 0,
                 {"frontend": 1e3 * (tracked - started)},
+                keyframe=True,
             )
         kf = self._reference(k, tracks)
         pairs = shared_tracks(self.history[kf][1], tracks)
@@ -261,6 +263,7 @@ class Odometry:
                 "graph": 1e3 * (optimised - measured),
                 "covariance": 1e3 * (time.perf_counter() - optimised),
             },
+            keyframe=self.keyframe == k,
         )
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:

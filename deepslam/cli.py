@@ -197,6 +197,16 @@ def _drift(args: argparse.Namespace) -> None:
         log.info(f"wrote {path}")
 
 
+def _report(args: argparse.Namespace) -> None:
+    from deepslam.backend.evaluation.report import write_report
+
+    if args.out.is_dir():
+        raise _UsageError(f"--out {args.out} is a folder; give a file name such as report.html")
+    for line in write_report(args.logs, args.out):
+        log.warning(f"deepslam: warning: {line}")
+    log.info(f"wrote {args.out}")
+
+
 def _recover(args: argparse.Namespace) -> None:
     from deepslam.logs.recover import recover
 
@@ -297,6 +307,9 @@ def _pipeline_commands(commands) -> None:
     )
     replay.add_argument("log", type=Path, help="MCAP log written by `deepslam run`")
     replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
+    report = _command(commands, "report", "one self-contained HTML page comparing runs from their logs", _report)
+    report.add_argument("logs", type=Path, nargs="+", help="MCAP logs written by deepslam run or replay")
+    report.add_argument("--out", type=Path, default=Path("out/report.html"), help="the HTML file to write")
     recover = _command(
         commands,
         "recover",

@@ -25,7 +25,8 @@ class Correspondences:
 class FrameDiagnostics:
     """How one frame went: tracks reported, inliers of its relative pose, whether it was lost (no
     relative pose: the estimate is a guess) and why, the median error (px) of its tracks against the
-    simulator's truth and the position error (m) of its estimate; NaN where there is no truth."""
+    simulator's truth, the position error (m) of its estimate (NaN where there is no truth), and whether
+    it became a keyframe."""
 
     tracks: int
     inliers: int
@@ -33,6 +34,7 @@ class FrameDiagnostics:
     reason: str = ""
     correspondence_error_px: float = float("nan")
     position_error_m: float = float("nan")
+    keyframe: bool = False
 
 
 @dataclass

@@ -210,7 +210,7 @@ def _apply(frame: dict, topic: str, message) -> None:
     elif topic == "/diagnostics/frame":
         frame["diagnostics"] = FrameDiagnostics(
             int(message.tracks), int(message.inliers), bool(message.lost), message.reason,
-            float(message.correspondence_error_px), float(message.position_error_m),
+            float(message.correspondence_error_px), float(message.position_error_m), bool(message.keyframe),
         )  # fmt: skip
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(

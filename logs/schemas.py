@@ -32,10 +32,30 @@ _DEFINITIONS = {
         "# tracked image points of one frame (pixels, top-left pixel centre at 0,0)\n"
         "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"
     ),
+    "nav_msgs/Path": "std_msgs/Header header\ngeometry_msgs/PoseStamped[] poses",
+    "foxglove_msgs/Point2": "float64 x\nfloat64 y",
+    "foxglove_msgs/Color": "float64 r\nfloat64 g\nfloat64 b\nfloat64 a",
+    "foxglove_msgs/CircleAnnotation": (
+        "builtin_interfaces/Time timestamp\nfoxglove_msgs/Point2 position\nfloat64 diameter\nfloat64 thickness\n"
+        "foxglove_msgs/Color fill_color\nfoxglove_msgs/Color outline_color"
+    ),
+    "foxglove_msgs/PointsAnnotation": (
+        "builtin_interfaces/Time timestamp\nuint8 UNKNOWN=0\nuint8 POINTS=1\nuint8 LINE_LOOP=2\nuint8 LINE_STRIP=3\n"
+        "uint8 LINE_LIST=4\nuint8 type\nfoxglove_msgs/Point2[] points\nfoxglove_msgs/Color outline_color\n"
+        "foxglove_msgs/Color[] outline_colors\nfoxglove_msgs/Color fill_color\nfloat64 thickness"
+    ),
+    "foxglove_msgs/TextAnnotation": (
+        "builtin_interfaces/Time timestamp\nfoxglove_msgs/Point2 position\nstring text\nfloat64 font_size\n"
+        "foxglove_msgs/Color text_color\nfoxglove_msgs/Color background_color"
+    ),
+    "foxglove_msgs/ImageAnnotations": (
+        "foxglove_msgs/CircleAnnotation[] circles\nfoxglove_msgs/PointsAnnotation[] points\n"
+        "foxglove_msgs/TextAnnotation[] texts"
+    ),
     "deepslam_msgs/FrameDiagnostics": (
         "# how the front-end and odometry did on one frame; NaN where a figure needs truth the run lacks\n"
         "std_msgs/Header header\nuint32 tracks\nuint32 inliers\nbool lost\nstring reason\n"
-        "float64 correspondence_error_px\nfloat64 position_error_m"
+        "float64 correspondence_error_px\nfloat64 position_error_m\nbool keyframe"
     ),
     "deepslam_msgs/Correspondences": (
         "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"
@@ -58,6 +78,15 @@ _DEPENDENCIES = {
     "deepslam_msgs/Tracks": ["std_msgs/Header"],
     "deepslam_msgs/Correspondences": ["std_msgs/Header", "builtin_interfaces/Time"],
     "deepslam_msgs/FrameDiagnostics": ["std_msgs/Header"],
+    "nav_msgs/Path": ["std_msgs/Header", "geometry_msgs/PoseStamped"],
+    "foxglove_msgs/CircleAnnotation": ["builtin_interfaces/Time", "foxglove_msgs/Point2", "foxglove_msgs/Color"],
+    "foxglove_msgs/PointsAnnotation": ["builtin_interfaces/Time", "foxglove_msgs/Point2", "foxglove_msgs/Color"],
+    "foxglove_msgs/TextAnnotation": ["builtin_interfaces/Time", "foxglove_msgs/Point2", "foxglove_msgs/Color"],
+    "foxglove_msgs/ImageAnnotations": [
+        "foxglove_msgs/CircleAnnotation",
+        "foxglove_msgs/PointsAnnotation",
+        "foxglove_msgs/TextAnnotation",
+    ],
 }
 
 
@@ -96,6 +125,9 @@ TOPICS = {
     "/frontend/tracks": "deepslam_msgs/Tracks",
     "/frontend/correspondences": "deepslam_msgs/Correspondences",
     "/diagnostics/frame": "deepslam_msgs/FrameDiagnostics",
+    "/camera/annotations": "foxglove_msgs/ImageAnnotations",
+    "/estimate/path": "nav_msgs/Path",
+    "/groundtruth/path": "nav_msgs/Path",
 }
 """Every topic a run writes, with its message type. Ground truth is absent in logs of real data."""
 

@@ -25,6 +25,10 @@ from mcap_ros2.writer import Writer as Ros2Writer
 from deepslam.logs.frames import LogFrame, quaternion_from_matrix
 from deepslam.logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
 
+PATH_POSES_AT_KEYFRAMES = 200  # poses of each path published at a keyframe (the whole path at the end)
+TRACK_AGE_SCALE = 20  # frames over which a track's colour goes from new to old
+_CLEAR = {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}
+
 
 def _time(stamp_ns: int) -> dict:
     return {"sec": int(stamp_ns // 1_000_000_000), "nanosec": int(stamp_ns % 1_000_000_000)}
@@ -126,6 +130,8 @@ class LogWriter:
             "deepslam", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
         )
         self.frames = 0
+        self._first_seen: dict[int, int] = {}  # track id -> the frame it was first logged in (live tracks only)
+        self._paths: dict[str, list[tuple[int, np.ndarray]]] = {"/estimate/path": [], "/groundtruth/path": []}
 
     def _put(self, topic: str, message: dict, stamp_ns: int) -> None:
         self._writer.write_message(
@@ -224,20 +230,65 @@ class LogWriter:
                 },
                 t,
             )
+        if frame.tracks is not None:
+            self._put(
+                "/camera/annotations", self._annotations(t, np.asarray(frame.tracks, np.float64).reshape(-1, 4)), t
+            )
+        for topic, pose in (("/estimate/path", frame.T_estimate), ("/groundtruth/path", frame.T_groundtruth)):
+            if pose is not None:
+                self._paths[topic].append((t, pose))
+        if frame.diagnostics is not None and frame.diagnostics.keyframe:
+            self._put_paths(t, PATH_POSES_AT_KEYFRAMES)
         d = frame.diagnostics
         if d is not None:
             self._put("/diagnostics/frame", {"header": _header(t, CAMERA_FRAME), "tracks": int(d.tracks),
                       "inliers": int(d.inliers), "lost": bool(d.lost), "reason": d.reason,
                       "correspondence_error_px": float(d.correspondence_error_px),
-                      "position_error_m": float(d.position_error_m)}, t)  # fmt: skip
+                      "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe)}, t)  # fmt: skip
         self.frames += 1
         self._file.flush()
 
+    def _annotations(self, stamp_ns: int, tracks: np.ndarray) -> dict:
+        """Foxglove ``ImageAnnotations`` of one frame's tracks: a dot per point coloured by the track's age
+        (new: yellow, 20 frames or more: blue), a ring around tracks carried without a detection (score 0).
+        Foxglove puts the pixel origin at the top-left corner of the first pixel, ours at its centre."""
+        ids = tracks[:, 3].astype(np.int64)
+        self._first_seen = {i: self._first_seen.get(i, self.frames) for i in ids.tolist()}
+        ages = np.array([self.frames - self._first_seen[i] for i in ids.tolist()], np.float64)
+        shade = np.clip(ages / TRACK_AGE_SCALE, 0.0, 1.0)
+        time = _time(stamp_ns)
+        points = [{"x": float(x) + 0.5, "y": float(y) + 0.5} for x, y in tracks[:, :2]]
+        colours = [{"r": 1.0 - s, "g": 0.85 - 0.45 * s, "b": s, "a": 1.0} for s in shade]
+        carried = tracks[:, 2] == 0
+        rings = [
+            {"timestamp": time, "position": point, "diameter": 6.0, "thickness": 1.0,
+             "fill_color": _CLEAR, "outline_color": {"r": 1.0, "g": 0.2, "b": 0.2, "a": 1.0}}
+            for point, is_carried in zip(points, carried, strict=True) if is_carried
+        ]  # fmt: skip
+        dots = {"timestamp": time, "type": 1, "points": points, "outline_color": _CLEAR, "outline_colors": colours,
+                "fill_color": _CLEAR, "thickness": 3.0}  # fmt: skip
+        return {"circles": rings, "points": [dots] if points else [], "texts": []}
+
+    def _put_paths(self, stamp_ns: int, most: int | None) -> None:
+        """The estimated and true trajectories so far as ``nav_msgs/Path``, thinned to at most ``most`` poses
+        (None: all), so that publishing them at every keyframe keeps a long log linear in its length."""
+        for topic, poses in self._paths.items():
+            if not poses:
+                continue
+            step = 1 if most is None else max(1, -(-len(poses) // most))
+            kept = poses[::step] + ([] if (len(poses) - 1) % step == 0 else [poses[-1]])  # always the latest
+            self._put(topic, {"header": _header(stamp_ns, WORLD_FRAME), "poses": [
+                {"header": _header(t, WORLD_FRAME), "pose": _pose(T)} for t, T in kept]}, stamp_ns)  # fmt: skip
+
     def close(self, complete: bool = True) -> None:
-        """Finish the file (summary and footer) and, if ``complete``, rename it from ``.partial`` to its
-        path; safe to call twice."""
+        """Finish the file (the whole paths, summary and footer) and, if ``complete``, rename it from
+        ``.partial`` to its path; safe to call twice."""
         if self._file.closed:
             return
+        last = max((poses[-1][0] for poses in self._paths.values() if poses), default=None)
+        if last is not None:
+            with _whole():
+                self._put_paths(last, None)
         self._writer.finish()
         self._file.flush()
         os.fsync(self._file.fileno())

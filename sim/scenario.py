@@ -14,6 +14,8 @@ from deepslam.sim.camera import intrinsics
 from deepslam.sim.shapes import check_size
 from deepslam.sim.world import WorldName
 
+START_TIME_S = 1_704_067_200.0  # 2024-01-01 00:00:00 UTC: simulated runs start there, not at 1970
+
 
 @dataclass(frozen=True)
 class ScenarioConfig:
@@ -33,6 +35,15 @@ class ScenarioConfig:
     )
     lighting: float = field(
         default=0.0, metadata={"help": "amplitude of a slow global brightness change (0.3 = 30%%)", "min": 0, "max": 1}
+    )
+    start_time: float = field(
+        default=START_TIME_S,
+        metadata={
+            "help": "time of the first frame, in seconds since 1970-01-01 UTC (default 2024-01-01 00:00 UTC); "
+            "frames follow at 1/fps",
+            "min": 0,
+            "max": 4e9,
+        },
     )
     seed: int = field(
         default=0,
@@ -99,7 +110,10 @@ class Scenario:
     def __iter__(self) -> Iterator[SimFrame]:
         c = self.config
         rng = np.random.default_rng([c.seed, 1])
+        start_ns = round(c.start_time * 1e9)
         for index, (T, stamp) in enumerate(zip(self.trajectory.poses, self.trajectory.stamps_ns, strict=False)):
             light = 1.0 + c.lighting * np.sin(2 * np.pi * index / max(c.frames, 2))
             frame = self.world.render(T, self.K, c.size, rng, c.noise, light)
-            yield SimFrame(frame.image, self.K, int(stamp), T, frame.landmark_ids, frame.landmark_pixels, frame.depth)
+            yield SimFrame(
+                frame.image, self.K, start_ns + int(stamp), T, frame.landmark_ids, frame.landmark_pixels, frame.depth
+            )

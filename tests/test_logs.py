@@ -1,5 +1,6 @@
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -21,7 +22,9 @@ from deepslam.logs.frames import pose_matrix, quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.logs.schemas import TOPICS, ros2_name
 from deepslam.logs.writer import LogWriteError, LogWriter, partial_path
-from deepslam.sim.scenario import ScenarioConfig
+from deepslam.sim.scenario import START_TIME_S, ScenarioConfig
+
+START_NS = round(START_TIME_S * 1e9)  # simulated runs start at 2024-01-01 00:00 UTC, not 1970
 
 
 def _as_logged(T):
@@ -173,7 +176,7 @@ def test_killed_run_keeps_its_frames_in_partial_and_recover_finishes_them(tmp_pa
     assert any("truncated" in str(w.message) for w in caught)
     assert len(frames) >= 20  # at least two 256 KiB chunks of ~16 KiB frames were complete
     stamps = [f.stamp_ns for f in frames]
-    assert stamps == [round(i * 1e8) for i in range(len(frames))]  # 10 fps, no gap, in order
+    assert stamps == [START_NS + round(i * 1e8) for i in range(len(frames))]  # 10 fps from the epoch, no gap
     assert all(f.T_estimate is not None and f.T_groundtruth is not None for f in frames)
     fixed = tmp_path / "fixed.mcap"
     assert main(["recover", str(partial_path(out)), "--out", str(fixed)]) == 0
@@ -295,3 +298,67 @@ def test_outputs_never_clobber_inputs_or_each_other(oracle_log, tmp_path):
         with LogWriter(failed, {}):
             raise RuntimeError("the run failed")
     assert failed.read_bytes() == b"keep me" and partial_path(failed).exists()
+
+
+def test_report_compares_runs_and_says_what_a_log_lacks(oracle_log, tmp_path):
+    import base64
+
+    path, _ = oracle_log
+    no_truth = tmp_path / "replayed.mcap"
+    replay(
+        path, TrackerConfig("classical"), OdometryConfig(scale="plane", plane_distance=2.0), no_truth, progress=False
+    )
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: int(path.stat().st_size * 0.7)])
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not a log")
+    out = tmp_path / "report.html"
+    assert main(["report", str(path), str(cut), str(junk), "--out", str(out)]) == 0
+    page = out.read_text()
+    assert "http://" not in page and "https://" not in page  # self-contained: nothing fetched
+    images = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    assert len(images) >= 4 and all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
+    assert "junk.mcap: not an MCAP file" in page and "truncated" in page  # said, not hidden
+    assert page.count("<tr>") == 3 and ">oracle<" in page  # a row per readable run
+    assert main(["report", str(junk), "--out", str(tmp_path / "none.html")]) == 1
+    assert not (tmp_path / "none.html").exists()
+
+
+def test_an_independent_reader_decodes_every_message(oracle_log):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from deepslam.logs.schemas import _DEFINITIONS
+
+    path, _ = oracle_log
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    ours = {}
+    for name, text in _DEFINITIONS.items():  # our own and Foxglove's types, from the definitions we ship
+        if name.split("/")[0] in ("deepslam_msgs", "foxglove_msgs"):
+            package, kind = name.split("/")
+            ours.update(
+                get_types_from_msg(text.replace("foxglove_msgs/", "foxglove_msgs/msg/"), f"{package}/msg/{kind}")
+            )
+    typestore.register(ours)
+    counts: dict[str, int] = {}
+    with AnyReader([path], default_typestore=typestore) as reader:
+        for connection, _, raw in reader.messages():
+            message = reader.deserialize(raw, connection.msgtype)
+            counts[connection.topic] = counts.get(connection.topic, 0) + 1
+            if connection.topic == "/camera/annotations" and message.points:
+                assert len(message.points[0].points) == len(message.points[0].outline_colors)
+    assert set(counts) == set(TOPICS) and counts["/camera/image"] == 25
+
+
+def test_the_foxglove_layout_shows_topics_the_logs_have():
+    from importlib.resources import files
+
+    layout = json.loads((files("deepslam.logs") / "foxglove_layout.json").read_text())
+    text = json.dumps(layout["configById"])
+    mentioned = set(re.findall(r'"(/[a-z_/]+)[."]', text))
+    assert mentioned and mentioned <= set(TOPICS), mentioned - set(TOPICS)
+    assert set(_panels(layout["layout"])) == set(layout["configById"])
+
+
+def _panels(node) -> list[str]:
+    return [node] if isinstance(node, str) else _panels(node["first"]) + _panels(node["second"])

@@ -105,6 +105,7 @@ def run_frames(
                 relative.reason if relative is not None else "",
                 float(np.median(frame_errors)) if len(frame_errors) else float("nan"),
                 position_error,
+                result.keyframe,
             )
         )
         errors.append(frame_errors)

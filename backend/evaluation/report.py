@@ -1,0 +1,214 @@
+"""`deepslam report`: one self-contained HTML page comparing runs from their logs alone.
+
+Per run: its settings, drift figures (where the log has ground truth), a top view of the estimate and
+the truth, translation error and RPE over time, tracks and inliers per frame with keyframes and lost
+frames marked, and a strip of frames with their tracks drawn. Images are embedded (base64 PNG): the page
+needs no network. What a log lacks (ground truth, diagnostics) or lost (a cut-off file) is said on the page.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from deepslam.backend import drift
+from deepslam.logs.frames import LogFrame
+from deepslam.logs.reader import LogError, read_frames, read_metadata
+
+STRIP_FRAMES = 6  # frames shown per run, evenly spaced
+
+
+@dataclass
+class Run:
+    """What a log holds for the report."""
+
+    path: Path
+    frames: list[LogFrame]
+    metadata: dict
+    notes: list[str] = field(default_factory=list)  # what is missing or was lost
+
+    @property
+    def label(self) -> str:
+        return self.path.stem
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(seconds (N,), truth (N, 4, 4), estimate (N, 4, 4)) of the frames with both, or None."""
+        both = [f for f in self.frames if f.T_groundtruth is not None and f.T_estimate is not None]
+        if len(both) < 2:
+            return None
+        seconds = np.array([(f.stamp_ns - both[0].stamp_ns) / 1e9 for f in both])
+        return seconds, np.stack([f.T_groundtruth for f in both]), np.stack([f.T_estimate for f in both])
+
+
+def load_run(path: Path) -> Run:
+    """A log as a ``Run``; LogError if nothing of it can be read as a deepslam log."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        frames = list(read_frames(path))
+    notes = [str(w.message) for w in caught]
+    try:
+        metadata = read_metadata(path)
+    except LogError as error:
+        metadata, notes = {}, [*notes, str(error)]
+    run = Run(path, frames, metadata, notes)
+    if run.poses() is None:
+        run.notes.append("no ground truth (/groundtruth/pose): drift figures are not available")
+    if not any(f.diagnostics for f in frames):
+        run.notes.append("no per-frame diagnostics (/diagnostics/frame): written by deepslam 0.2.0 and later")
+    return run
+
+
+def _png(fig) -> str:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=90)
+    return base64.b64encode(buffer.getvalue()).decode()
+
+
+def _image_tag(png_base64: str, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{png_base64}">'
+
+
+def trajectory_figures(runs: list[Run]) -> str:
+    """Top views, translation error (after SE(3) alignment) and RPE over time, all runs together."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with_truth = [(run, run.poses()) for run in runs if run.poses() is not None]
+    if not with_truth:
+        return "<p>No run has ground truth: no drift plots.</p>"
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for run, (seconds, truth, estimate) in with_truth:
+        shown = np.sort(np.argsort(truth[:, :3, 3].std(0))[1:])  # the two axes with the most motion
+        aligned = drift.align(estimate, truth, with_scale=False)
+        line = axes[0].plot(aligned[:, shown[0], 3], aligned[:, shown[1], 3], label=f"{run.label} estimate")[0]
+        axes[0].plot(truth[:, shown[0], 3], truth[:, shown[1], 3], "--", color=line.get_color(), alpha=0.6,
+                     label=f"{run.label} truth")  # fmt: skip
+        axes[1].plot(seconds, np.linalg.norm(aligned[:, :3, 3] - truth[:, :3, 3], axis=1), label=run.label)
+        axes[2].plot(seconds[1:], drift.rpe(estimate, truth)[0], label=run.label)
+    axes[0].set(title="top view (aligned, SE(3))", xlabel="m", ylabel="m")
+    axes[0].axis("equal")
+    axes[1].set(title="translation error over time (ATE)", xlabel="time (s)", ylabel="m")
+    axes[2].set(title="RPE over time (1 frame)", xlabel="time (s)", ylabel="m")
+    for ax in axes:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    tag = _image_tag(_png(fig), "trajectories")
+    plt.close(fig)
+    return tag
+
+
+def tracking_figure(runs: list[Run]) -> str:
+    """Tracks and inliers per frame; keyframes as ticks at the bottom, lost frames as red crosses."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(runs), figsize=(5 * len(runs), 3.4), squeeze=False, sharey=True)
+    for ax, run in zip(axes[0], runs, strict=True):
+        index = np.arange(len(run.frames))
+        tracks = [len(f.tracks) if f.tracks is not None else 0 for f in run.frames]
+        ax.plot(index, tracks, label="tracks")
+        diagnostics = [f.diagnostics for f in run.frames]
+        if all(d is not None for d in diagnostics) and diagnostics:
+            ax.plot(index, [d.inliers for d in diagnostics], label="inliers")
+            keyframes = [i for i, d in enumerate(diagnostics) if d.keyframe]
+            lost = [i for i, d in enumerate(diagnostics) if d.lost]
+            ax.plot(keyframes, np.zeros(len(keyframes)), "k|", markersize=12, label="keyframes")
+            ax.plot(lost, np.zeros(len(lost)), "rx", markersize=8, label=f"lost ({len(lost)})")
+        ax.set(title=run.label, xlabel="frame")
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("points")
+    fig.tight_layout()
+    tag = _image_tag(_png(fig), "tracks and inliers")
+    plt.close(fig)
+    return tag
+
+
+def frame_strip(run: Run) -> str:
+    """``STRIP_FRAMES`` frames of a run with their tracks: detected in green, carried (score 0) in red."""
+    picks = np.linspace(0, len(run.frames) - 1, min(STRIP_FRAMES, len(run.frames))).round().astype(int)
+    tiles = []
+    for index in picks:
+        frame = run.frames[index]
+        tile = cv2.cvtColor(cv2.resize(frame.image, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST),
+                            cv2.COLOR_GRAY2BGR)  # fmt: skip
+        for x, y, score, _ in frame.tracks if frame.tracks is not None else []:
+            colour = (60, 200, 60) if score > 0 else (60, 60, 230)
+            cv2.circle(tile, (int(round(2 * x + 0.5)), int(round(2 * y + 0.5))), 2, colour, -1)
+        cv2.putText(tile, f"frame {index}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1)
+        tiles.append(tile)
+    ok, png = cv2.imencode(".png", np.hstack(tiles))
+    return _image_tag(base64.b64encode(png.tobytes()).decode(), f"frames of {run.label}")
+
+
+def _drift_table(runs: list[Run]) -> str:
+    header = ["run", "front-end", "frames", "ATE SE3 m", "ATE Sim3 m", "RPE m", "final %", "lost", "track error px"]
+    rows = []
+    for run in runs:
+        poses, diagnostics = run.poses(), [f.diagnostics for f in run.frames if f.diagnostics is not None]
+        figures = drift.summary(poses[2], poses[1]) if poses is not None else None
+        errors = [d.correspondence_error_px for d in diagnostics if np.isfinite(d.correspondence_error_px)]
+        cells = [
+            run.label, str(run.metadata.get("frontend", "?")), str(len(run.frames)),
+            *(f"{figures[k]:.4f}" if figures else "n/a" for k in ("ate_se3", "ate_sim3", "rpe_trans")),
+            f"{figures['final_drift_pct']:.2f}" if figures else "n/a",
+            str(sum(d.lost for d in diagnostics)) if diagnostics else "n/a",
+            f"{np.median(errors):.2f}" if errors else "n/a",
+        ]  # fmt: skip
+        rows.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+    return "<table><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr>" + "".join(rows) + "</table>"
+
+
+def _settings(run: Run) -> str:
+    shown = {
+        k: v for k, v in run.metadata.items() if k in ("scenario", "tracker", "odometry", "version", "replayed_from")
+    }
+    return f"<pre>{html.escape(json.dumps(shown, indent=1))}</pre>"
+
+
+STYLE = """body{font-family:sans-serif;margin:1.5em;color:#222}table{border-collapse:collapse;margin:1em 0}
+td,th{border:1px solid #bbb;padding:.3em .7em;text-align:right}th{background:#eee}
+img{max-width:100%;display:block;margin:.5em 0}.note{color:#a33}.runs{display:flex;gap:1.5em;flex-wrap:wrap}
+.run{flex:1;min-width:30em}pre{background:#f6f6f6;padding:.6em;font-size:.8em;max-height:18em;overflow:auto}"""
+
+
+def write_report(paths: list[Path], out: Path) -> list[str]:
+    """Write the HTML report of the logs ``paths`` to ``out``; returns one line per log that could not be
+    read at all (the page says so too). LogError if none could."""
+    runs, unreadable = [], []
+    for path in paths:
+        try:
+            runs.append(load_run(Path(path)))
+        except LogError as error:
+            unreadable.append(str(error))
+    if not runs:
+        raise LogError("no log could be read: " + "; ".join(unreadable))
+    sections = [f"<p class='note'>{html.escape(line)}</p>" for line in unreadable]
+    sections += ["<h2>Drift</h2>", _drift_table(runs), trajectory_figures(runs), "<h2>Tracking</h2>",
+                 tracking_figure(runs), "<h2>Runs</h2><div class='runs'>"]  # fmt: skip
+    for run in runs:
+        notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in run.notes)
+        sections.append(
+            f"<div class='run'><h3>{html.escape(run.label)}</h3>{notes}{frame_strip(run)}{_settings(run)}</div>"
+        )
+    sections.append("</div>")
+    page = (
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>deepslam report</title><style>{STYLE}</style>"
+        f"</head><body><h1>deepslam report: {html.escape(', '.join(r.label for r in runs))}</h1>"
+        + "".join(sections)
+        + "</body></html>"
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(page)
+    return unreadable
