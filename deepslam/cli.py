@@ -109,7 +109,7 @@ def _eval_realimages(args: argparse.Namespace) -> None:
 
     result = ev.static_repeatability(_detectors(args.detectors), args.frames, args.seed, jitter_px=args.jitter)
     name = f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages"
-    _write_result(args.out, name, result, ev.static_lines(result))
+    _write_result(args.out, name, result, ev.static_lines(result), lambda r, out: ev.save_static_plots(r, out, name))
 
 
 def _detectors(names: list[str] | None, **extraction) -> dict:
@@ -135,13 +135,13 @@ def _eval_pipeline(args: argparse.Namespace) -> None:
 def _bench(args: argparse.Namespace) -> None:
     _check_folder(args.out)
     if args.target == "pipeline":
-        from deepslam.backend.evaluation.bench import bench_pipeline
+        from deepslam.backend.evaluation.bench import bench_pipeline, save_plots
         from deepslam.frontend.tracking import TrackerConfig
 
         timings = bench_pipeline(args.frames, tracker_config=_config(args, TrackerConfig))
         units = {name: "" if name == "fps" else "MB" if name.startswith("memory") else "ms" for name in timings}
         lines = [f"  {name:<24} {value:8.2f} {units[name]}" for name, value in timings.items()]
-        _write_result(args.out, "bench_pipeline", timings, lines)
+        _write_result(args.out, "bench_pipeline", timings, lines, lambda t, out: save_plots(t, out))
         return
     from deepslam.frontend.evaluation import bench
 
@@ -149,7 +149,8 @@ def _bench(args: argparse.Namespace) -> None:
     lines = [
         "  " + "  ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()) for r in rows
     ]
-    _write_result(args.out, f"bench_{args.target}", {"rows": rows}, lines)
+    name = f"bench_{args.target}"
+    _write_result(args.out, name, {"rows": rows}, lines, lambda r, out: bench.save_plots(r["rows"], out, name))
 
 
 def _print_drift(drift: dict, scale: str) -> None:

@@ -23,6 +23,9 @@ def test_magicpoint_training_runs_and_resumes(tmp_path):
     longer = train_magicpoint.TrainConfig(iterations=3, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path, longer)
     assert torch.load(tmp_path / "last.pt", weights_only=False)["step"] == 3
+    history = json.loads((tmp_path / "history.json").read_text())
+    assert len(history) == 3 and all(np.isfinite(h["train_loss"]) for h in history)
+    assert (tmp_path / "curves.png").read_bytes()[:4] == b"\x89PNG"  # loss and validation curves
     other_variant = train_magicpoint.TrainConfig(variant="L", iterations=4, batch=4, validation_per_category=1)
     with pytest.raises(ValueError, match="another shape.*resume it with its own options"):
         train_magicpoint.run(tmp_path, other_variant)

@@ -51,3 +51,21 @@ def bench_pipeline(
     means["per_frame_total"] = sum(v for k, v in means.items() if k.startswith("odometry."))
     means["fps"] = 1e3 / means["per_frame_total"]
     return means | growth
+
+
+def save_plots(timings: dict[str, float], out_dir) -> list:
+    """PNG: milliseconds per frame of each stage (the odometry's, and inside the front-end)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    stages = {k: v for k, v in timings.items() if not k.startswith(("memory", "graph_ms", "fps", "per_frame"))}
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    ax.barh(list(stages), list(stages.values()))
+    ax.set(xlabel="ms per frame", title=f"pipeline stages ({timings['fps']:.0f} frames per second)")
+    fig.tight_layout()
+    path = out_dir / "bench_pipeline.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]

@@ -87,3 +87,25 @@ def bench_warp(repeats: int = 200) -> list[dict]:
             }
         )
     return rows
+
+
+def save_plots(rows: list[dict], out_dir, name: str) -> list:
+    """PNG: each model's forward pass (and point extraction) beside the paper's time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [f"{r['model']} {r.get('size', r.get('input', ''))}" for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(rows)), 3.6))
+    ax.bar(x - 0.2, [r["forward_ms"] for r in rows], 0.4, label="forward (here)")
+    ax.bar(x + 0.2, [r["paper_ms"] for r in rows], 0.4, label="paper")
+    ax.set_xticks(x, labels, rotation=20, ha="right", fontsize=8)
+    ax.set(ylabel="ms, one thread", yscale="log", title="forward pass")
+    ax.legend()
+    fig.tight_layout()
+    path = out_dir / f"{name}.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]

@@ -274,3 +274,31 @@ def static_lines(result: dict) -> list[str]:
         ]
         lines.append(f"{name:<26}" + "".join(f"{c:>24}" for c in cells) + f"   {paper}")
     return lines
+
+
+def save_static_plots(result: dict, out_dir, name: str = "realimages") -> list:
+    """PNG: repeatability@N and the localisation error of repeated points per detector and condition."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    detectors = list(result)
+    conditions = list(result[detectors[0]])
+    width = 0.8 / len(detectors)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4))
+    for i, detector in enumerate(detectors):
+        x = np.arange(len(conditions)) + i * width
+        axes[0].bar(x, [result[detector][c]["repeatability"] for c in conditions], width, label=detector)
+        axes[1].bar(x, [result[detector][c]["localization_error"] for c in conditions], width, label=detector)
+    for ax, title in zip(
+        axes, ("repeatability@N (eps 2 px)", "localisation error of repeated points (px)"), strict=True
+    ):
+        ax.set_xticks(np.arange(len(conditions)) + 0.4 - width / 2, conditions)
+        ax.set_title(title)
+    axes[0].legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    path = out_dir / f"{name}.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]

@@ -116,6 +116,34 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
     return kept
 
 
+def _scored(figures: dict) -> set[str]:
+    """The validation figures' names (what makes two validations comparable)."""
+    return set(figures) - {"step", "wall_s", "train_loss"}
+
+
+def save_curves(history: list[dict], path: Path) -> None:
+    """PNG of every validation figure and the training loss against the step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [k for k in history[-1] if k not in ("step", "wall_s")]
+    columns = min(4, len(names))
+    rows = -(-len(names) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.6 * rows), squeeze=False)
+    steps = [h["step"] for h in history]
+    for ax, name in zip(axes.ravel(), names, strict=False):
+        ax.plot(steps, [h.get(name, float("nan")) for h in history], "o-", markersize=3)
+        ax.set_title(name, fontsize=9)
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[len(names) :]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
 def _moving_average(model: torch.nn.Module, decay: float, state: dict | None) -> AveragedModel | None:
     """The exponential moving average of ``model``'s weights and BatchNorm statistics (None if off)."""
     if not decay:
@@ -170,6 +198,7 @@ def train(
     scored = ema.module if ema else model
     figures: dict[str, float] = history[-1] if history else {}
     bar = progress_bar(total=config.iterations, initial=step, unit="it")
+    losses: list[float] = []
     started = time.time() - elapsed
     while step < config.iterations:
         model.train()
@@ -182,6 +211,7 @@ def train(
         optimizer.zero_grad()
         out["loss"].backward()
         optimizer.step()
+        losses.append(float(out["loss"].detach()))
         if ema:
             ema.update_parameters(model)
         step += 1
@@ -195,11 +225,14 @@ def train(
             with torch.no_grad():
                 measured = {name: float(value) for name, value in validate_fn(scored).items()}  # plain data
                 figures = {"step": step, "wall_s": round(time.time() - started, 1), **measured}
-            if history and history[-1].keys() != figures.keys():
+                figures["train_loss"] = float(np.mean(losses)) if losses else float("nan")  # since the last one
+                losses = []
+            if history and _scored(history[-1]) != _scored(figures):
                 best = -np.inf  # a resumed run whose validation has changed: the old best does not compare
                 bar.write("the validation figures differ from the checkpoint's: best.pt restarts from here")
             history.append(figures)
             (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+            save_curves(history, out_dir / "curves.png")
             bar.write(json.dumps(figures))
             extra = {"elapsed": time.time() - started, "history": history} | (
                 {"ema": ema.module.state_dict()} if ema else {}
