@@ -9,13 +9,14 @@ Frames come from any source (a simulator or a replayed log) as ``InputFrame``s; 
 simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
 truth (the usual convention of monocular VO evaluation); ``scale="plane"`` keeps metric scale without
 ground truth from a known initial distance to the dominant plane (like a known camera height), which
-homography decompositions (t / d) carry from frame to frame.
+homography decompositions (t / d) carry from frame to frame; ``scale="none"`` does the same with that
+distance taken as the unit of length: the trajectory up to scale.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, get_args
 
 import cv2
@@ -25,7 +26,7 @@ from deepslam.backend import relpose
 from deepslam.backend.graph import GraphConfig, PoseGraph, measurement_sigmas
 from deepslam.frontend.tracking import Tracker, Tracks, Truth
 
-Scale = Literal["gt", "plane"]
+Scale = Literal["gt", "plane", "none"]
 SCALES: tuple[str, ...] = get_args(Scale)
 
 
@@ -57,7 +58,8 @@ class OdometryConfig:
     scale: Scale = field(
         default="gt",
         metadata={
-            "help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane"
+            "help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane; "
+            "none = up to scale (the plane's distance taken as 1; drift after Sim(3) alignment only)"
         },
     )
     plane_distance: float | None = field(
@@ -139,6 +141,8 @@ class Odometry:
         config = config or OdometryConfig()
         if config.scale == "plane" and not config.plane_distance:
             raise ValueError("scale 'plane' needs the first camera's distance to the dominant plane")
+        if config.scale == "none":  # the dominant plane's distance is the unit of length
+            config = replace(config, plane_distance=1.0)
         self.tracker, self.config = tracker, config
         self.graph: PoseGraph | None = None
         self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index
@@ -164,7 +168,7 @@ class Odometry:
         pairs = shared_tracks(tracks_i, tracks_j)
         p1, p2 = tracks_i.points[pairs[:, 0]], tracks_j.points[pairs[:, 1]]
         rel = relpose.estimate(p1, p2, frame_j.K, self.model, frame_j.shape, self.last_translation)
-        if rel.ok and self.config.scale == "plane" and rel.model == "essential":
+        if rel.ok and self.config.scale != "gt" and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K)  # magnitude from the dominant plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
         T = rel.T_c1_c2.copy()
@@ -175,7 +179,7 @@ class Odometry:
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
         """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""
-        if self.config.scale == "plane" and rel.ok and rel.plane_normal is not None:
+        if self.config.scale != "gt" and rel.ok and rel.plane_normal is not None:
             distance = self.plane_distance - float(rel.plane_normal @ T[:3, 3])
             if distance > 1e-3:
                 self.plane_distance = distance

@@ -154,7 +154,8 @@ def _bench(args: argparse.Namespace) -> None:
 
 
 def _print_drift(drift: dict, scale: str) -> None:
-    meaning = " = ground-truth step lengths" if scale == "gt" else " = known distance to the dominant plane"
+    meaning = {"gt": " = ground-truth step lengths", "plane": " = known distance to the dominant plane",
+               "none": ": up to scale, drift after Sim(3) alignment only"}[scale]  # fmt: skip
     print(f"drift (scale: {scale}{meaning})")
     for key, value in drift.items():
         print(f"  {key:<16} {value:.4f}" if isinstance(value, float) else f"  {key:<16} {value}")
@@ -177,10 +178,11 @@ def _replay(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation.runs import replay
     from deepslam.backend.odometry import OdometryConfig
     from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.logs.sources import SourceOptions
 
-    result = replay(
-        args.log, _config(args, TrackerConfig), _config(args, OdometryConfig), args.out, {"version": _version()}
-    )
+    configs = _config(args, TrackerConfig), _config(args, OdometryConfig)
+    sources = _config(args, SourceOptions)
+    result = replay(args.input, *configs, args.out, {"version": _version()}, source_options=sources)
     if result["drift"] is not None:
         _print_drift(result["drift"], result["scale"])
     log.info(f"wrote {args.out}")
@@ -286,6 +288,7 @@ def _train_commands(commands) -> None:
 def _pipeline_commands(commands) -> None:
     from deepslam.backend.odometry import OdometryConfig
     from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.logs.sources import SourceOptions
     from deepslam.sim.scenario import ScenarioConfig
 
     run = _command(
@@ -301,12 +304,16 @@ def _pipeline_commands(commands) -> None:
     replay = _command(
         commands,
         "replay",
-        "feed a logged run through the pipeline again, into a new log",
+        "run the pipeline on recorded data into a new log: a deepslam log, a ROS 2 bag, a TUM RGB-D or an "
+        "EuRoC/ASL folder",
         _replay,
         TrackerConfig,
         OdometryConfig,
+        SourceOptions,
     )
-    replay.add_argument("log", type=Path, help="MCAP log written by `deepslam run`")
+    replay.add_argument(
+        "input", type=Path, help="a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM or EuRoC folder"
+    )
     replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
     report = _command(commands, "report", "one self-contained HTML page comparing runs from their logs", _report)
     report.add_argument("logs", type=Path, nargs="+", help="MCAP logs written by deepslam run or replay")
@@ -460,6 +467,9 @@ def main(argv: list[str] | None = None) -> int:
         args.func(args)
     except _UsageError as error:
         parser.error(str(error))
+    except BrokenPipeError:  # the reader of our output went away (`deepslam ... | head`)
+        sys.stdout = open(os.devnull, "w")  # nothing more reaches it: do not fail at exit
+        return 0
     except OSError as error:
         where = f"{error.filename}: " if error.filename else ""
         print(f"deepslam: error: {where}{error.strerror or error}", file=sys.stderr)
@@ -467,9 +477,6 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, RuntimeError) as error:
         print(f"deepslam: error: {error}", file=sys.stderr)
         return 1
-    except BrokenPipeError:  # the reader of our output went away (`deepslam ... | head`)
-        sys.stdout = open(os.devnull, "w")  # nothing more reaches it: do not fail at exit
-        return 0
     except KeyboardInterrupt as interrupt:
         print(f"deepslam: {'terminated' if isinstance(interrupt, Terminated) else 'interrupted'}", file=sys.stderr)
         return 143 if isinstance(interrupt, Terminated) else 130

@@ -13,6 +13,7 @@ from deepslam.backend import drift
 from deepslam.backend.odometry import FrameResult, InputFrame, Odometry, OdometryConfig
 from deepslam.frontend.tracking import Tracker, TrackerConfig, Tracks, Truth, make_tracker
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
+from deepslam.logs.sources import SourceOptions, open_source
 from deepslam.progress import progress_bar
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -59,17 +60,26 @@ Sink = Callable[[InputFrame, FrameResult, FrameDiagnostics], None]
 @dataclass
 class RunOutput:
     """What a run produced: online estimates (N, 4, 4), each frame's pose as the graph had it when the
-    frame was done (the poses that are logged); ground truth (N, 4, 4) or None; per-frame diagnostics;
-    every track's error against truth (px, empty without truth)."""
+    frame was done (the poses that are logged); ground truth (N, 4, 4) with NaN where a frame has none, or
+    None when no frame has any; per-frame diagnostics; every track's error against truth (px, empty
+    without truth)."""
 
     estimate: np.ndarray
     truth: np.ndarray | None
     diagnostics: list[FrameDiagnostics]
     track_errors: np.ndarray
 
-    def summary(self) -> dict:
-        """Drift figures (with truth), lost frames and the median track error against truth."""
-        figures = drift.summary(self.estimate, self.truth) if self.truth is not None else {}
+    def summary(self, scale: str = "gt") -> dict:
+        """Drift over the frames with ground truth (with ``scale`` "none", only what survives a Sim(3)
+        alignment), lost frames and the median track error against truth."""
+        figures: dict = {}
+        if self.truth is not None:
+            known = ~np.isnan(self.truth[:, 0, 0])
+            if known.sum() >= 2:
+                figures = drift.summary(self.estimate[known], self.truth[known])
+                if scale == "none":
+                    figures = {k: figures[k] for k in ("ate_sim3", "path_length", "frames")}
+                figures["frames_with_truth"] = int(known.sum())
         errors = self.track_errors
         return figures | {
             "lost_frames": sum(d.lost for d in self.diagnostics),
@@ -116,8 +126,10 @@ def run_frames(
         previous = (replace(frame, image=None, truth=None), result.tracks)  # what the next frame needs
     if not online:
         raise ValueError("no frames to process")
-    has_truth = all(T is not None for T in truth)
-    return RunOutput(np.stack(online), np.stack(truth) if has_truth else None, diagnostics, np.concatenate(errors))
+    unknown = np.full((4, 4), np.nan)
+    known = [T if T is not None else unknown for T in truth]
+    has_truth = any(T is not None for T in truth)
+    return RunOutput(np.stack(online), np.stack(known) if has_truth else None, diagnostics, np.concatenate(errors))
 
 
 def simulate(
@@ -164,36 +176,45 @@ def simulate(
 
 
 def replay(
-    log: str | Path,
+    source: str | Path,
     tracker_config: TrackerConfig,
     odometry_config: OdometryConfig,
     out: str | Path,
     metadata: dict | None = None,
     progress: bool = True,
+    source_options: SourceOptions = SourceOptions(),
 ) -> dict:
-    """Feed a log's images (camera info, ground truth) through the pipeline again into a new log
-    (never over the log it reads)."""
-    from deepslam.logs.reader import check_log
+    """Run the pipeline on recorded data into a new log (never over its input): a deepslam log, a ROS 2
+    bag, a TUM RGB-D or an EuRoC/ASL folder (``deepslam.logs.sources``), checked before any work starts.
+    The log's metadata keeps the input's own calibration; its CameraInfo the K the pipeline used."""
     from deepslam.logs.writer import check_output
 
     if tracker_config.frontend == "oracle":
-        raise ValueError("the oracle front-end needs the simulator's landmarks, which logs do not hold")
-    check_log(log)
-    check_output(out, inputs=(log,))
+        raise ValueError("the oracle front-end needs the simulator's landmarks, which recorded data does not hold")
+    check_output(out, inputs=(source,))
+    frames = open_source(source, source_options)
+    if odometry_config.scale == "gt" and frames.frames_with_truth < len(frames):
+        raise ValueError(
+            f"{source}: --scale gt needs ground truth in every frame, {frames.frames_with_truth} of {len(frames)} "
+            f"have it; use --scale none (up to scale) or --scale plane --plane-distance M"
+        )
     odometry = Odometry(_tracker(tracker_config, odometry_config), odometry_config)
     meta = {
-        "replayed_from": str(log),
+        "replayed_from": str(source),
+        "source": frames.kind,
+        "source_calibration": frames.calibration.to_metadata() if frames.calibration else None,
         "odometry": asdict(odometry_config),
         "frontend": tracker_config.frontend,
         "tracker": asdict(tracker_config),
         **(metadata or {}),
     }
-    output = run_logged(logged_frames(log), odometry, out, meta, None, progress)
+    inputs = (InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam) for f in frames.frames())
+    output = run_logged(inputs, odometry, out, meta, len(frames), progress)
     return {
         "estimate": output.estimate,
         "truth": output.truth,
         "scale": odometry_config.scale,
-        "drift": output.summary() if output.truth is not None else None,
+        "drift": output.summary(odometry_config.scale) if output.truth is not None else None,
         "diagnostics": output.diagnostics,
     }
 
@@ -250,11 +271,3 @@ def run_logged(
             log.write(to_log_frame(frame, result, stamps[result.reference], diagnostics))
 
         return run_frames(frames, odometry, sink, total, progress)
-
-
-def logged_frames(path: str | Path) -> Iterable[InputFrame]:
-    """Frames of a log as odometry input (images, camera info, ground truth when logged)."""
-    from deepslam.logs.reader import read_frames
-
-    for f in read_frames(path):
-        yield InputFrame(f.image, f.K, f.stamp_ns, f.T_groundtruth)

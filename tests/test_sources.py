@@ -1,0 +1,210 @@
+"""Running on recorded data: ROS 2 bags, TUM RGB-D and EuRoC/ASL folders made from a simulated run give the
+drift that replaying the run's own log gives; bad inputs get one-line errors before any work."""
+
+import cv2
+import numpy as np
+import pytest
+
+from deepslam.backend.evaluation.runs import replay, simulate
+from deepslam.backend.odometry import OdometryConfig
+from deepslam.cli import main
+from deepslam.frontend.tracking import TrackerConfig
+from deepslam.logs.frames import quaternion_from_matrix
+from deepslam.logs.reader import read_frames, read_metadata
+from deepslam.logs.sources import Calibration, Rectifier, SourceError, SourceOptions, associate, open_source
+from deepslam.sim.scenario import ScenarioConfig
+
+CLASSICAL = TrackerConfig("classical")
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A simulated run's log, its frames, and the drift of replaying that log with the classical front-end."""
+    folder = tmp_path_factory.mktemp("recorded")
+    log = folder / "run.mcap"
+    simulate(ScenarioConfig(frames=20, seed=2), CLASSICAL, OdometryConfig(), log, {}, progress=False)
+    frames = list(read_frames(log))
+    reference = replay(log, CLASSICAL, OdometryConfig(), folder / "reference.mcap", progress=False)
+    return folder, frames, reference["drift"]
+
+
+def _write_bag(path, frames, encoding: str, distortion=(0.0, 0.0, 0.0, 0.0, 0.0)):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    Time, Header = types["builtin_interfaces/msg/Time"], types["std_msgs/msg/Header"]
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        image = writer.add_connection("/robot/front/image_raw", "sensor_msgs/msg/Image", typestore=store)
+        info = writer.add_connection("/robot/front/info", "sensor_msgs/msg/CameraInfo", typestore=store)
+        truth = writer.add_connection("/mocap/odom", "nav_msgs/msg/Odometry", typestore=store)
+        for f in frames:
+            header = Header(stamp=Time(sec=f.stamp_ns // 10**9, nanosec=f.stamp_ns % 10**9), frame_id="camera")
+            h, w = f.image.shape
+            pixels = f.image if encoding == "mono8" else np.repeat(f.image[..., None], 3, axis=2)
+            step = w * (1 if encoding == "mono8" else 3)
+            message = types["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding=encoding,
+                                                     is_bigendian=0, step=step, data=pixels.reshape(-1))  # fmt: skip
+            writer.write(image, f.stamp_ns, store.serialize_cdr(message, image.msgtype))
+            roi = types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+            camera = types["sensor_msgs/msg/CameraInfo"](
+                header=header, height=h, width=w, distortion_model="plumb_bob", d=np.array(distortion),
+                k=f.K.ravel(), r=np.eye(3).ravel(), p=np.hstack([f.K, np.zeros((3, 1))]).ravel(),
+                binning_x=0, binning_y=0, roi=roi,
+            )  # fmt: skip
+            writer.write(info, f.stamp_ns, store.serialize_cdr(camera, info.msgtype))
+            x, y, z = f.T_groundtruth[:3, 3]
+            q = quaternion_from_matrix(f.T_groundtruth[:3, :3])
+            Pose, Point, Quaternion = (types[f"geometry_msgs/msg/{n}"] for n in ("Pose", "Point", "Quaternion"))
+            pose = Pose(position=Point(x=x, y=y, z=z), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
+            covariance = np.zeros(36)
+            odometry = types["nav_msgs/msg/Odometry"](
+                header=header, child_frame_id="camera",
+                pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=covariance),
+                twist=types["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=types["geometry_msgs/msg/Twist"](
+                        linear=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                        angular=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                    ),
+                    covariance=covariance,
+                ),
+            )  # fmt: skip
+            writer.write(truth, f.stamp_ns, store.serialize_cdr(odometry, truth.msgtype))
+
+
+def _tum_line(stamp_ns: int, T) -> str:
+    q = quaternion_from_matrix(T[:3, :3])
+    return f"{stamp_ns // 10**9}.{stamp_ns % 10**9:09d} " + " ".join(repr(float(v)) for v in (*T[:3, 3], *q))
+
+
+def _write_tum(folder, frames) -> None:
+    (folder / "rgb").mkdir(parents=True)
+    lines = []
+    for f in frames:
+        name = f"rgb/{f.stamp_ns}.png"
+        cv2.imwrite(str(folder / name), f.image)
+        lines.append(f"{f.stamp_ns // 10**9}.{f.stamp_ns % 10**9:09d} {name}")
+    (folder / "rgb.txt").write_text("# timestamp filename\n" + "\n".join(lines) + "\n")
+    (folder / "groundtruth.txt").write_text("\n".join(_tum_line(f.stamp_ns, f.T_groundtruth) for f in frames) + "\n")
+
+
+def _write_calibration(path, K, size) -> None:
+    fx, fy, cx, cy = (repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    path.write_text(f"fx: {fx}\nfy: {fy}\ncx: {cx}\ncy: {cy}\nwidth: {size[1]}\nheight: {size[0]}\n"
+                    "distortion: [0, 0, 0, 0, 0]\n")  # fmt: skip
+
+
+def _write_euroc(folder, frames) -> None:
+    camera = folder / "mav0" / "cam0"
+    (camera / "data").mkdir(parents=True)
+    for f in frames:
+        cv2.imwrite(str(camera / "data" / f"{f.stamp_ns}.png"), f.image)
+    (camera / "data.csv").write_text(
+        "#timestamp [ns],filename\n" + "".join(f"{f.stamp_ns},{f.stamp_ns}.png\n" for f in frames)
+    )
+    K, (h, w) = frames[0].K, frames[0].image.shape
+    intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    identity = ", ".join(str(v) for v in np.eye(4, dtype=int).ravel())
+    (camera / "sensor.yaml").write_text(
+        f"%YAML:1.0\nsensor_type: camera\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{identity}]\n"
+        f"resolution: [{w}, {h}]\ncamera_model: pinhole\nintrinsics: [{intrinsics}]\n"
+        "distortion_model: radial-tangential\ndistortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n"
+    )
+    truth = folder / "mav0" / "state_groundtruth_estimate0"
+    truth.mkdir()
+    rows = []
+    for f in frames:
+        q = quaternion_from_matrix(f.T_groundtruth[:3, :3])
+        values = [*f.T_groundtruth[:3, 3], q[3], q[0], q[1], q[2]]
+        rows.append(f"{f.stamp_ns}," + ",".join(repr(float(v)) for v in values) + ",0,0,0")
+    (truth / "data.csv").write_text("#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z,v_x,v_y,v_z\n" + "\n".join(rows) + "\n")
+
+
+@pytest.mark.parametrize("kind", ["bag mono8", "bag rgb8", "tum", "euroc"])
+def test_recorded_data_replays_to_the_drift_of_the_simulated_log(recorded, kind, tmp_path):
+    folder, frames, reference = recorded
+    options = SourceOptions()
+    if kind.startswith("bag"):
+        source = tmp_path / "bag"
+        _write_bag(source, frames, kind.split()[1])
+        options = SourceOptions(groundtruth_topic="/mocap/odom")
+    elif kind == "tum":
+        source = tmp_path / "tum"
+        _write_tum(source, frames)
+        _write_calibration(tmp_path / "camera.yaml", frames[0].K, frames[0].image.shape)
+        options = SourceOptions(calibration=str(tmp_path / "camera.yaml"))
+    else:
+        source = tmp_path / "euroc"
+        _write_euroc(source, frames)
+    result = replay(source, CLASSICAL, OdometryConfig(), tmp_path / "out.mcap", progress=False, source_options=options)
+    for key in ("ate_se3", "ate_sim3", "rpe_trans", "final_drift_pct"):
+        assert result["drift"][key] == pytest.approx(reference[key], rel=1e-6, abs=1e-9), key
+    meta = read_metadata(tmp_path / "out.mcap")
+    assert meta["source"] in ("ROS 2 bag", "TUM RGB-D folder", "EuRoC/ASL folder") and meta["source_calibration"]
+
+
+def test_scale_none_reports_only_what_survives_a_sim3_alignment(recorded, tmp_path, capsys):
+    folder, frames, _ = recorded
+    _write_tum(tmp_path / "tum", frames[:12])
+    truth = (tmp_path / "tum" / "groundtruth.txt").read_text().splitlines()
+    (tmp_path / "tum" / "groundtruth.txt").write_text("\n".join(truth[::2]) + "\n")  # the motion capture missed half
+    _write_calibration(tmp_path / "camera.yaml", frames[0].K, frames[0].image.shape)
+    argv = ["replay", str(tmp_path / "tum"), "--frontend", "classical", "--calibration", str(tmp_path / "camera.yaml"),
+            "--out", str(tmp_path / "o.mcap"), "-q"]  # fmt: skip
+    assert main(argv) == 1 and "--scale gt needs ground truth in every frame, 6 of 12" in capsys.readouterr().err
+    assert main([*argv, "--scale", "none"]) == 0
+    out = capsys.readouterr().out
+    assert "up to scale" in out and "ate_sim3" in out and "ate_se3" not in out and "frames_with_truth 6" in out
+
+
+def test_undistortion_and_resizing_keep_the_pinhole_geometry():
+    K = np.array([[120.0, 0, 79.5], [0, 120.0, 59.5], [0, 0, 1]])
+    distortion = (-0.3, 0.1, 0.001, -0.002, 0.0)
+    calibration = Calibration.checked(K, distortion, "plumb_bob", (120, 160), "test")
+    rectify = Rectifier(calibration, (240, 320))
+    # a bright dot where the distorted camera sees a point; after rectification it is where a pinhole sees it
+    point = np.array([[0.25, -0.15, 1.0]])
+    seen, _ = cv2.projectPoints(point, np.zeros(3), np.zeros(3), K, np.array(distortion))
+    image = np.zeros((120, 160), np.uint8)
+    cv2.circle(image, tuple(int(round(v)) for v in seen.ravel()), 2, 255, -1)
+    rectified = rectify(image).astype(float)
+    ys, xs = np.mgrid[0:240, 0:320]
+    found = np.array([(xs * rectified).sum(), (ys * rectified).sum()]) / rectified.sum()
+    expected = (rectify.K @ point.ravel())[:2]
+    assert np.linalg.norm(found - expected) < 1.0  # pixels of the 320x240 result
+
+
+def test_association_follows_tums_rule():
+    ms = 1_000_000
+    assert associate([0, 100 * ms, 200 * ms], [5 * ms, 95 * ms, 500 * ms]) == {0: 0, 1: 1}  # none within 20 ms of 200
+    assert associate([0, 30 * ms], [25 * ms]) == {1: 0}  # the closer pair wins, each truth used once
+
+
+def test_bad_recorded_inputs_get_one_line_errors_before_any_work(recorded, tmp_path):
+    folder, frames, _ = recorded
+    bag = tmp_path / "bag"
+    _write_bag(bag, frames[:3], "mono8")
+    for source, options, message in [
+        (bag, SourceOptions(image_topic="/nope"), "no topic /nope; the bag has /mocap/odom"),
+        (bag, SourceOptions(groundtruth_topic="/robot/front/info"), "is a sensor_msgs/msg/CameraInfo, not one of"),
+        (tmp_path, SourceOptions(), "neither a TUM RGB-D"),
+        (tmp_path / "missing", SourceOptions(), "no such file or folder"),
+    ]:
+        with pytest.raises(SourceError, match=message):
+            open_source(source, options)
+    tum = tmp_path / "tum"
+    _write_tum(tum, frames[:3])
+    with pytest.raises(SourceError, match="carries no calibration"):
+        open_source(tum)
+    (tum / "rgb.txt").write_text((tum / "rgb.txt").read_text().replace(".", ".9", 1))  # the first frame comes last
+    _write_calibration(tmp_path / "c.yaml", frames[0].K, frames[0].image.shape)
+    with pytest.raises(SourceError, match="timestamps out of order"):
+        open_source(tum, SourceOptions(calibration=str(tmp_path / "c.yaml")))
+    euroc = tmp_path / "euroc"
+    _write_euroc(euroc, frames[:3])
+    cv2.imwrite(str(next((euroc / "mav0" / "cam0" / "data").iterdir())), np.zeros((64, 64), np.uint8))
+    with pytest.raises(SourceError, match="images change size"):
+        open_source(euroc)
+    assert main(["replay", str(euroc), "--out", str(tmp_path / "x.mcap")]) == 1
+    assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "x.mcap.partial").exists()
