@@ -86,7 +86,7 @@ def _eval_detector(args: argparse.Namespace) -> None:
     _check_folder(args.out)
 
     chosen = _detectors(args.detectors, **ev.SHAPES_EXTRACTION)
-    result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed)
+    result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed, _workers(args))
     _write_result(
         args.out, "detector", result, ev.table_lines(result) + [""] + ev.category_lines(result), ev.save_plots
     )
@@ -98,7 +98,7 @@ def _eval_warp(args: argparse.Namespace) -> None:
 
     _check_folder(args.out)
 
-    result = ev.breakdown_table(MagicWarp.pretrained(args.weights), args.runs, args.seed)
+    result = ev.breakdown_table(MagicWarp.pretrained(args.weights), args.runs, args.seed, workers=_workers(args))
     _write_result(args.out, "warp", result, ev.table_lines(result), ev.save_plots)
 
 
@@ -107,9 +107,16 @@ def _eval_realimages(args: argparse.Namespace) -> None:
 
     _check_folder(args.out)
 
-    result = ev.static_repeatability(_detectors(args.detectors), args.frames, args.seed, jitter_px=args.jitter)
+    detectors = _detectors(args.detectors)
+    result = ev.static_repeatability(detectors, args.frames, args.seed, jitter_px=args.jitter, workers=_workers(args))
     name = f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages"
     _write_result(args.out, name, result, ev.static_lines(result), lambda r, out: ev.save_static_plots(r, out, name))
+
+
+def _workers(args: argparse.Namespace):
+    from deepslam.parallel import Workers
+
+    return Workers(args.jobs, args.ray)
 
 
 def _detectors(names: list[str] | None, **extraction) -> dict:
@@ -128,7 +135,7 @@ def _eval_pipeline(args: argparse.Namespace) -> None:
 
     _check_folder(args.out)
 
-    rows = pipeline_matrix(_config(args, SweepConfig), _config(args, TrackerConfig))
+    rows = pipeline_matrix(_config(args, SweepConfig), _config(args, TrackerConfig), workers=_workers(args))
     _write_result(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), save_plots)
 
 
@@ -336,6 +343,7 @@ def _pipeline_commands(commands) -> None:
 def _eval_commands(commands) -> None:
     from deepslam.backend.evaluation.sweep import SweepConfig
     from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.parallel import Workers
 
     evaluate = commands.add_parser("eval", help="the paper's evaluations, and the pipeline's drift over a sweep")
     evals = evaluate.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
@@ -392,6 +400,12 @@ def _eval_commands(commands) -> None:
     )
     for parser in evals.choices.values():
         parser.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the .txt, .json and plots")
+        add_options(parser, Workers)
+        parser.add_argument(
+            "--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+            help="run the pieces on a Ray cluster at ADDRESS (as `ray start --head` printed it), or with no ADDRESS "
+            "on a local one bound to 127.0.0.1 with --jobs CPUs (needs pip install -e '.[ray]')",
+        )  # fmt: skip
 
 
 def _bench_commands(commands) -> None:

@@ -141,3 +141,29 @@ def test_eval_detector_writes_table_json_and_plots(tmp_path, capsys):
     result = json.loads((tmp_path / "detector.json").read_text())
     assert set(result["detectors"]) >= {"FAST", "Harris", "Shi", "MagicPointS"}
     assert len(list(tmp_path.glob("*.png"))) == 3
+
+
+@pytest.mark.slow
+def test_parallel_evaluations_give_the_serial_bytes(tmp_path, capsys):
+    sweep = ["eval", "pipeline", "--worlds", "plane", "--trajectories", "circle", "--noise", "0", "--lighting", "0",
+             "--seeds", "3", "--frames", "8", "--frontends", "oracle", "classical", "-q"]  # fmt: skip
+    real = ["eval", "realimages", "--frames", "3", "--detectors", "Harris", "MagicPointS", "-q"]
+    for argv, name in ((sweep, "pipeline.json"), (real, "realimages.json")):
+        assert main([*argv, "--out", str(tmp_path / "serial")]) == 0
+        assert main([*argv, "--out", str(tmp_path / "jobs"), "--jobs", "2"]) == 0
+        assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "jobs" / name).read_bytes(), name
+    with pytest.raises(SystemExit) as exit_info:
+        main([*sweep, "--jobs", "0"])
+    assert exit_info.value.code == 2 and "argument --jobs: must lie in [1, inf]" in capsys.readouterr().err
+
+
+def test_ray_without_ray_says_how_to_get_it(tmp_path, capsys):
+    pytest.importorskip("torch")
+    try:
+        import ray  # noqa: F401
+
+        pytest.skip("Ray is installed here")
+    except ImportError:
+        pass
+    assert main(["eval", "warp", "--runs", "1", "--ray", "--out", str(tmp_path)]) == 1
+    assert 'pip install -e ".[ray]"' in capsys.readouterr().err

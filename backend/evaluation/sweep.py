@@ -14,7 +14,7 @@ import numpy as np
 from deepslam.backend.evaluation.runs import simulate
 from deepslam.backend.odometry import OdometryConfig, Scale
 from deepslam.frontend.tracking import Frontend, TrackerConfig
-from deepslam.progress import progress_bar
+from deepslam.parallel import Workers, parallel_map
 from deepslam.sim import trajectories
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 from deepslam.sim.world import WorldName
@@ -69,8 +69,10 @@ def _median(values: list[float]) -> float:
     return float(np.median(values)) if values else float("nan")
 
 
-def run_cell(cell: tuple, seed: int, config: SweepConfig, tracker_config: TrackerConfig) -> dict:
-    """One run of a sweep: its drift figures, texture and whether it failed."""
+def run_cell(piece: tuple) -> dict:
+    """One run of a sweep, ``piece`` = (cell, seed, config, tracker_config): its drift figures, texture and
+    whether it failed."""
+    cell, seed, config, tracker_config = piece
     world, path, noise, light, frontend = cell
     scenario = ScenarioConfig(
         world=world, trajectory=path, frames=config.frames, noise=noise, lighting=light, seed=seed
@@ -92,34 +94,37 @@ def run_cell(cell: tuple, seed: int, config: SweepConfig, tracker_config: Tracke
 
 
 def pipeline_matrix(
-    config: SweepConfig = SweepConfig(), tracker_config: TrackerConfig = TrackerConfig(), progress: bool = True
+    config: SweepConfig = SweepConfig(),
+    tracker_config: TrackerConfig = TrackerConfig(),
+    progress: bool = True,
+    workers: Workers = Workers(),
 ) -> list[dict]:
     """One row per (world, trajectory, noise, lighting, front-end): the median ATE SE3 over seeds on
     photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
     cells, seeds = config.cells(), range(config.seeds)
     if not cells:
         raise ValueError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
-    rows = []
-    with progress_bar(total=len(cells) * config.seeds, unit="run", disable=not progress) as bar:
-        for cell in cells:
-            runs = []
-            for seed in seeds:
-                bar.set_description(" ".join(map(str, cell)) + f" seed {seed}")
-                runs.append(run_cell(cell, seed, config, tracker_config))
-                bar.update(1)
-            textured = [r["ate_se3"] for r in runs if not r["corner_poor"]]
-            world, path, noise, light, frontend = cell
-            rows.append(
-                {
-                    "world": world, "trajectory": path, "noise": noise, "lighting": light, "frontend": frontend,
-                    "scale": config.scale,
-                    "median_ate_se3": _median(textured),
-                    "median_ate_se3_corner_poor": _median([r["ate_se3"] for r in runs if r["corner_poor"]]),
-                    "failed": sum(r["failed"] for r in runs),
-                    "runs": runs,
-                }
-            )  # fmt: skip
-    return rows
+    pieces = [(cell, seed, config, tracker_config) for cell in cells for seed in seeds]
+    results = parallel_map(run_cell, pieces, workers, _describe, "runs" if progress else None)
+    return [_row(cell, results[i * config.seeds : (i + 1) * config.seeds], config) for i, cell in enumerate(cells)]
+
+
+def _describe(piece: tuple) -> str:
+    return " ".join(map(str, piece[0])) + f" seed {piece[1]}"
+
+
+def _row(cell: tuple, runs: list[dict], config: SweepConfig) -> dict:
+    """A sweep row: the cell, its medians (photographs and mosaics; corner-poor apart), failures, runs."""
+    world, path, noise, light, frontend = cell
+    textured = [r["ate_se3"] for r in runs if not r["corner_poor"]]
+    return {
+        "world": world, "trajectory": path, "noise": noise, "lighting": light, "frontend": frontend,
+        "scale": config.scale,
+        "median_ate_se3": _median(textured),
+        "median_ate_se3_corner_poor": _median([r["ate_se3"] for r in runs if r["corner_poor"]]),
+        "failed": sum(r["failed"] for r in runs),
+        "runs": runs,
+    }  # fmt: skip
 
 
 def matrix_lines(rows: list[dict]) -> list[str]:

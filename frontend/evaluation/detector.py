@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from deepslam.frontend.evaluation.metrics import average_precision, localization_error, match_detections, merge
+from deepslam.parallel import Workers, parallel_map
 from deepslam.progress import progress_bar
 from deepslam.sim import noise
 from deepslam.sim.world import photo
@@ -77,26 +78,38 @@ def available_detectors(threshold: float = 0.001, border: int = 4) -> dict[str, 
     return detectors
 
 
-def report(detectors: dict[str, Detector], per_category: int, sweep_per_category: int, seed: int) -> dict:
-    """Everything ``deepslam eval detector`` shows: table, per category, noise sweep, noise types."""
+def _detector_figures(piece: tuple) -> dict:
+    """Everything ``report`` measures of one detector: ``piece`` = (name, detector, per_category,
+    sweep_per_category, seed)."""
     from deepslam.sim.shapes import evaluation_set
 
+    name, detector, per_category, sweep_per_category, seed = piece
     items = evaluation_set(per_category, seed=seed)
-    noisy = noisy_set(items, seed)
     sweep_items = evaluation_set(sweep_per_category, seed=seed)
-    result: dict = {"per_category_images": per_category, "seed": seed, "detectors": {}}
-    for name, detector in detectors.items():
-        clean_figures = evaluate_set(detector, items, f"{name} clean")
-        noisy_figures = evaluate_set(detector, noisy, f"{name} noisy")
-        sweep = {s: evaluate_set(detector, noisy_set(sweep_items, seed, s), f"{name} s={s}") for s in SWEEP}
-        kinds = {k: evaluate_set(detector, noisy_set(sweep_items, seed, 1.0, k), f"{name} {k}") for k in noise.KINDS}
-        result["detectors"][name] = {
-            "clean": clean_figures,
-            "noisy": noisy_figures,
-            "sweep": {str(s): {"map": f["map"], "mle": f["mle"]} for s, f in sweep.items()},
-            "noise_types": {k: {"map": f["map"], "mle": f["mle"]} for k, f in kinds.items()},
-        }
-    return result
+    clean_figures = evaluate_set(detector, items)
+    noisy_figures = evaluate_set(detector, noisy_set(items, seed))
+    sweep = {s: evaluate_set(detector, noisy_set(sweep_items, seed, s)) for s in SWEEP}
+    kinds = {k: evaluate_set(detector, noisy_set(sweep_items, seed, 1.0, k)) for k in noise.KINDS}
+    return {
+        "clean": clean_figures,
+        "noisy": noisy_figures,
+        "sweep": {str(s): {"map": f["map"], "mle": f["mle"]} for s, f in sweep.items()},
+        "noise_types": {k: {"map": f["map"], "mle": f["mle"]} for k, f in kinds.items()},
+    }
+
+
+def report(
+    detectors: dict[str, Detector], per_category: int, sweep_per_category: int, seed: int, workers: Workers = Workers()
+) -> dict:
+    """Everything ``deepslam eval detector`` shows: table, per category, noise sweep, noise types; the
+    detectors run in parallel as ``workers`` says."""
+    pieces = [(name, d, per_category, sweep_per_category, seed) for name, d in detectors.items()]
+    figures = parallel_map(_detector_figures, pieces, workers, lambda p: f"detector {p[0]}", "detectors")
+    return {
+        "per_category_images": per_category,
+        "seed": seed,
+        "detectors": {name: f for name, f in zip(detectors, figures, strict=True)},
+    }
 
 
 def table_lines(result: dict) -> list[str]:
@@ -241,24 +254,36 @@ def sequence_repeatability(
     return {"repeatability": rep, "n": count, "localization_error": error}
 
 
+def _condition_figures(piece: tuple) -> dict:
+    """Repeatability of one detector in one condition: ``piece`` = (name, detector, size, noisy, frames,
+    seed, jitter_px); the condition's sequences come from its own seed, whichever detector runs on them."""
+    name, detector, size, noisy, frames, seed, jitter_px = piece
+    rng = np.random.default_rng([seed, size[0], int(noisy)])
+    sequences = photo_sequences([photo(p, size) for p in PHOTOS], frames, rng, noisy, jitter_px)
+    return sequence_repeatability(detector, sequences)
+
+
 def static_repeatability(
     detectors: dict[str, Detector],
     frames: int = 20,
     seed: int = 0,
     sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320)),
     jitter_px: float = 0.0,
+    workers: Workers = Workers(),
 ) -> dict:
     """Frame-to-frame repeatability@N (eps=2) on real photographs seen by a static camera under
     changing light, clean and with the full noise of ``sim.noise``; with ``jitter_px`` > 0 every frame
     is also translated by up to that many pixels (the true homographies are used)."""
+    conditions = [(size, noisy) for size in sizes for noisy in (False, True)]
+    pieces = [
+        (name, d, size, noisy, frames, seed, jitter_px) for size, noisy in conditions for name, d in detectors.items()
+    ]
+    figures = parallel_map(
+        _condition_figures, pieces, workers, lambda p: f"{p[0]} at {p[2]} noisy={p[3]}", "conditions"
+    )
     result: dict = {}
-    for size in sizes:
-        for noisy in (False, True):
-            rng = np.random.default_rng([seed, size[0], int(noisy)])
-            sequences = photo_sequences([photo(name, size) for name in PHOTOS], frames, rng, noisy, jitter_px)
-            key = f"{size[1]}x{size[0]} {'noisy' if noisy else 'clean'}"
-            for name, detector in detectors.items():
-                result.setdefault(name, {})[key] = sequence_repeatability(detector, sequences, f"{name} {key}")
+    for (name, _, size, noisy, *_), figure in zip(pieces, figures, strict=True):
+        result.setdefault(name, {})[f"{size[1]}x{size[0]} {'noisy' if noisy else 'clean'}"] = figure
     return result
 
 

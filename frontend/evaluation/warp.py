@@ -8,7 +8,7 @@ import numpy as np
 
 from deepslam.frontend.magicwarp import MagicWarp, MagicWarpNet, refine
 from deepslam.geometry import warp_points
-from deepslam.progress import progress_bar
+from deepslam.parallel import Workers, parallel_map
 from deepslam.sim.homography import image_corners
 from deepslam.sim.pointsets import MOTIONS, PointSetPair, make_pair, motion_homography, random_direction
 
@@ -101,7 +101,41 @@ def _breakdown(magnitudes: np.ndarray, reps: np.ndarray, threshold: float = 90.0
     return float(magnitudes[i - 1] + fraction * (magnitudes[i] - magnitudes[i - 1]))
 
 
-def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progress: bool = True) -> dict:
+def _cell_repeatability(piece: tuple) -> dict[str, np.ndarray]:
+    """Match repeatability (runs, magnitudes) of every method in one cell (density, extra, motion)."""
+    warp, density, extra, motion, runs, seed, methods = piece
+    grid = GRIDS[motion]
+    reps = {method: np.zeros((runs, len(grid))) for method in methods}
+    for run in range(runs):
+        rng = np.random.default_rng([seed, run])
+        count = int(rng.integers(DENSITIES[density][0], DENSITIES[density][1] + 1))
+        direction = random_direction(rng)
+        pairs = [
+            make_pair(np.random.default_rng([seed, run, 1]), motion_homography(motion, m, SIZE, direction), count,
+                      extra, SIZE)
+            for m in grid
+        ]  # fmt: skip
+        estimates = {"nearest_neighbour": [np.eye(3)] * len(pairs), "ransac": [ransac_reference(p) for p in pairs]}
+        if warp:
+            inputs = [(p.points_a, p.points_b) for p in pairs]
+            first = warp.estimate_batch(inputs, SIZE)
+            estimates["magicwarp"] = list(first)
+            second = warp.estimate_batch(
+                [(warp_points(a, H), b) for (a, b), H in zip(inputs, first, strict=True)], SIZE
+            )
+            estimates["magicwarp_x2"] = [h2 @ h1 / (h2 @ h1)[2, 2] for h1, h2 in zip(first, second, strict=True)]
+            estimates["magicwarp_refined"] = [refine(a, b, H) for (a, b), H in zip(inputs, first, strict=True)]
+            estimates["magicwarp_clean_b"] = list(
+                warp.estimate_batch([(p.points_a, p.without_spurious().points_b) for p in pairs], SIZE)
+            )
+        for method in methods:
+            reps[method][run] = [match_repeatability(H, p) for H, p in zip(estimates[method], pairs, strict=True)]
+    return reps
+
+
+def breakdown_table(
+    warp: MagicWarp | None, runs: int = 50, seed: int = 0, progress: bool = True, workers: Workers = Workers()
+) -> dict:
     """The paper's 90% breakdown table for NN, RANSAC, MagicWarp, MagicWarp x2, MagicWarp refined by
     snapping and a robust fit (``frontend.magicwarp.refine``), and MagicWarp given image B without its
     spurious points but scored with them, "magicwarp_clean_b": how far a network that ignored spurious
@@ -117,38 +151,11 @@ def breakdown_table(warp: MagicWarp | None, runs: int = 50, seed: int = 0, progr
     table: dict = {}
     curves: dict = {}
     jobs = [(d, e, m) for d in DENSITIES for e in EXTRAS for m in GRIDS]
-    for density, extra, motion in progress_bar(jobs, desc="breakdown", disable=not progress):
+    pieces = [(warp, d, e, m, runs, seed, methods) for d, e, m in jobs]
+    results = parallel_map(_cell_repeatability, pieces, workers, lambda p: f"cell {p[1]} {p[2]} {p[3]}",
+                           "breakdown" if progress else None)  # fmt: skip
+    for (density, extra, motion), reps in zip(jobs, results, strict=True):
         grid = GRIDS[motion]
-        reps = {method: np.zeros((runs, len(grid))) for method in methods}
-        for run in range(runs):
-            rng = np.random.default_rng([seed, run])
-            count = int(rng.integers(DENSITIES[density][0], DENSITIES[density][1] + 1))
-            direction = random_direction(rng)
-            pairs = [
-                make_pair(
-                    np.random.default_rng([seed, run, 1]),
-                    motion_homography(motion, m, SIZE, direction),
-                    count,
-                    extra,
-                    SIZE,
-                )
-                for m in grid
-            ]
-            estimates = {"nearest_neighbour": [np.eye(3)] * len(pairs), "ransac": [ransac_reference(p) for p in pairs]}
-            if warp:
-                inputs = [(p.points_a, p.points_b) for p in pairs]
-                first = warp.estimate_batch(inputs, SIZE)
-                estimates["magicwarp"] = list(first)
-                second = warp.estimate_batch(
-                    [(warp_points(a, H), b) for (a, b), H in zip(inputs, first, strict=False)], SIZE
-                )
-                estimates["magicwarp_x2"] = [h2 @ h1 / (h2 @ h1)[2, 2] for h1, h2 in zip(first, second, strict=False)]
-                estimates["magicwarp_refined"] = [refine(a, b, H) for (a, b), H in zip(inputs, first, strict=False)]
-                estimates["magicwarp_clean_b"] = list(
-                    warp.estimate_batch([(p.points_a, p.without_spurious().points_b) for p in pairs], SIZE)
-                )
-            for method in methods:
-                reps[method][run] = [match_repeatability(H, p) for H, p in zip(estimates[method], pairs, strict=False)]
         table.setdefault(density, {}).setdefault(str(extra), {})
         for method in methods:
             value = float(np.mean([_breakdown(grid, r) for r in reps[method]]))

@@ -1,0 +1,124 @@
+"""Running independent pieces of an evaluation in parallel: local worker processes or a Ray cluster.
+
+``parallel_map(fn, items)`` returns ``[fn(item) for item in items]`` in order, whichever way it runs, so a
+sweep's results are the same bytes serially, in ``jobs`` worker processes or on Ray (on CPUs: every piece
+is seeded by its own item, and each worker runs one torch thread). A piece that fails names itself.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from typing import Callable, Sequence, TypeVar
+
+from deepslam.progress import progress_bar
+
+Item = TypeVar("Item")
+Result = TypeVar("Result")
+
+
+@dataclass(frozen=True)
+class Workers:
+    """Where the pieces run: ``jobs`` local processes (1: in this process), or a Ray cluster at
+    ``ray_address`` ("local" starts one on this machine, bound to 127.0.0.1)."""
+
+    jobs: int = field(default=1, metadata={"help": "local worker processes (one torch thread each)", "min": 1})
+    ray_address: str | None = None  # the CLI's --ray [ADDRESS]
+
+    def __post_init__(self):
+        if self.jobs < 1:
+            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
+
+
+class PieceFailed(RuntimeError):
+    """A piece of a parallel evaluation raised; the message names the piece."""
+
+
+def _init_worker() -> None:
+    import cv2
+    import torch
+
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
+
+
+def parallel_map(
+    fn: Callable[[Item], Result],
+    items: Sequence[Item],
+    workers: Workers = Workers(),
+    describe: Callable[[Item], str] = str,
+    progress: str | None = None,
+) -> list[Result]:
+    """``[fn(item) for item in items]``, run as ``workers`` says; progress counts finished pieces.
+    ``fn`` must be a module-level function and items picklable when ``workers`` is not one local job."""
+    if workers.ray_address is not None:
+        return _on_ray(fn, items, workers, describe, progress)
+    if workers.jobs == 1 or len(items) <= 1:
+        results = []
+        for item in progress_bar(items, desc=progress, unit="piece", disable=progress is None):
+            results.append(_run(fn, item, describe))
+        return results
+    results: list = [None] * len(items)
+    with ProcessPoolExecutor(max_workers=workers.jobs, initializer=_init_worker) as pool:
+        futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
+        bar = progress_bar(total=len(items), desc=progress, unit="piece", disable=progress is None)
+        for future in as_completed(futures):
+            index = futures[future]
+            try:
+                results[index] = future.result()
+            except Exception as error:  # noqa: BLE001 - re-raised with the piece named
+                for other in futures:
+                    other.cancel()
+                raise PieceFailed(f"{describe(items[index])} failed: {type(error).__name__}: {error}") from error
+            bar.update(1)
+        bar.close()
+    return results
+
+
+def _run(fn, item, describe):
+    try:
+        return fn(item)
+    except Exception as error:  # noqa: BLE001 - re-raised with the piece named
+        raise PieceFailed(f"{describe(item)} failed: {type(error).__name__}: {error}") from error
+
+
+def _on_ray(fn, items, workers: Workers, describe, progress) -> list:
+    """The same on Ray: a local cluster on 127.0.0.1 (usage statistics and dashboard off) or ``address``."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError('--ray needs Ray: pip install -e ".[ray]" (or pip install ray)') from None
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    try:
+        if workers.ray_address == "local":
+            ray.init(num_cpus=workers.jobs, include_dashboard=False, _node_ip_address="127.0.0.1",
+                     log_to_driver=False)  # fmt: skip
+        else:
+            ray.init(address=workers.ray_address, log_to_driver=False)
+    except (ConnectionError, RuntimeError, ValueError) as error:
+        raise ValueError(f"cannot reach a Ray cluster at {workers.ray_address}: {error}") from None
+    try:
+        remote = ray.remote(num_cpus=1)(_ray_piece)
+        refs = [remote.remote(fn, item) for item in items]
+        results: list = [None] * len(items)
+        index_of = {ref: index for index, ref in enumerate(refs)}
+        pending = list(refs)
+        bar = progress_bar(total=len(items), desc=progress, unit="piece", disable=progress is None)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            index = index_of[done[0]]
+            try:
+                results[index] = ray.get(done[0])
+            except Exception as error:  # noqa: BLE001 - re-raised with the piece named
+                raise PieceFailed(f"{describe(items[index])} failed: {error}") from error
+            bar.update(1)
+        bar.close()
+        return results
+    finally:
+        ray.shutdown()
+
+
+def _ray_piece(fn, item):
+    _init_worker()
+    return fn(item)
