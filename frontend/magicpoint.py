@@ -79,6 +79,7 @@ class MagicPoint:
     ``grid_shifts`` 4 averages the heatmaps of the image shifted by 0 and 4 pixels in x and y against
     the 8-pixel cell grid (3-4x the time; 2: the diagonal shift only): detections then move with the
     image more faithfully (the single pass is not shift-equivariant within a cell).
+    ``device`` is where the network runs ("cpu" or "cuda").
     ``upsample`` s > 1 detects on the image enlarged s times (bilinear; the NMS radius and border scale
     with it, points come back in input pixels): the small corners of real photographs then come
     closer to the scale of its synthetic training shapes, at about s^2 the time.
@@ -94,6 +95,7 @@ class MagicPoint:
         grid_shifts: int = 1,
         subpixel: Subpixel = "none",
         upsample: int = 1,
+        device: str = "cpu",
     ):
         if grid_shifts not in GRID_SHIFTS:
             raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
@@ -106,7 +108,8 @@ class MagicPoint:
             )
         if subpixel not in SUBPIXEL:
             raise ValueError(f"subpixel must be one of {', '.join(SUBPIXEL)}, got {subpixel!r}")
-        self.net = fold_batchnorm(net)
+        self.device = torch.device(device)
+        self.net = fold_batchnorm(net).to(self.device)
         self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
         self.grid_shifts, self.subpixel, self.upsample = grid_shifts, subpixel, upsample
 
@@ -127,23 +130,25 @@ class MagicPoint:
     @torch.inference_mode()
     def cells(self, image: np.ndarray) -> np.ndarray:
         """Cell softmax, float32 (65, H/8, W/8): the input format of MagicWarp."""
-        return torch.softmax(self.net(_as_tensor(image)), dim=1)[0].numpy()
+        return torch.softmax(self.net(_as_tensor(image).to(self.device)), dim=1)[0].cpu().numpy()
 
     @torch.inference_mode()
     def heatmap(self, image: np.ndarray) -> np.ndarray:
         """Per-pixel corner probability, float32 (H, W)."""
         if self.grid_shifts == 1:
-            return cells_to_heatmap(torch.softmax(self.net(_as_tensor(image)), dim=1))[0].numpy()
+            return cells_to_heatmap(torch.softmax(self.net(_as_tensor(image).to(self.device)), dim=1))[0].cpu().numpy()
         image = check_image(image, CELL)
         h, w = image.shape
         shifts = GRID_SHIFTS[self.grid_shifts]
         batch = np.stack(
             [cv2.copyMakeBorder(image, dy, CELL - dy, dx, CELL - dx, cv2.BORDER_REFLECT_101) for dx, dy in shifts]
         )
-        x = torch.from_numpy(batch).float().div_(255.0)[:, None]
-        heatmaps = torch.cat(
-            [cells_to_heatmap(torch.softmax(self.net(chunk), dim=1)) for chunk in x.split(SHIFT_BATCH)]
-        ).numpy()
+        x = torch.from_numpy(batch).float().div_(255.0)[:, None].to(self.device)
+        heatmaps = (
+            torch.cat([cells_to_heatmap(torch.softmax(self.net(chunk), dim=1)) for chunk in x.split(SHIFT_BATCH)])
+            .cpu()
+            .numpy()
+        )
         return np.mean(
             [heat[dy : dy + h, dx : dx + w] for heat, (dx, dy) in zip(heatmaps, shifts, strict=False)], axis=0
         )

@@ -98,11 +98,12 @@ def _as_points(points: np.ndarray, name: str) -> np.ndarray:
 class MagicWarp:
     """The shipped MagicWarp, ready for inference (BatchNorm folded, eval mode)."""
 
-    def __init__(self, net: MagicWarpNet):
-        self.net = fold_batchnorm(net)
+    def __init__(self, net: MagicWarpNet, device: str = "cpu"):
+        self.device = torch.device(device)
+        self.net = fold_batchnorm(net).to(self.device)
 
     @classmethod
-    def pretrained(cls, path: str | Path | None = None) -> "MagicWarp":
+    def pretrained(cls, path: str | Path | None = None, device: str = "cpu") -> "MagicWarp":
         """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint."""
         path = Path(path) if path else WEIGHTS / "magicwarp.pt"
         if not path.exists():
@@ -110,7 +111,7 @@ class MagicWarp:
         config, weights = read_weights(path)
         net = MagicWarpNet(MagicWarpConfig(**config))
         net.load_state_dict(weights)
-        return cls(net)
+        return cls(net, device)
 
     @torch.inference_mode()
     def estimate_batch(self, pairs: list[tuple[np.ndarray, np.ndarray]], image_size: tuple[int, int]) -> np.ndarray:
@@ -122,7 +123,8 @@ class MagicWarp:
             ],
             axis=1,
         )
-        H = self.net(torch.from_numpy(cells).contiguous(memory_format=torch.channels_last)).double().numpy()
+        x = torch.from_numpy(cells).to(self.device).contiguous(memory_format=torch.channels_last)
+        H = self.net(x).double().cpu().numpy()
         N = normalizer(image_size)
         H = np.linalg.inv(N) @ H @ N
         return H / H[:, 2:3, 2:3]

@@ -77,3 +77,13 @@ def read_weights(path: Path) -> tuple[dict, dict]:
     average of the weights (``--ema``) when it has one, as that is what it was validated on."""
     state = load_checkpoint(path)
     return network_config(state), state.get("ema", state["model"])
+
+
+def resolve_device(name: str) -> str:
+    """ "cpu" or "cuda" for a device option ("auto": cuda when there is one); ValueError for cuda where there
+    is none."""
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: this machine has no CUDA device (use cpu or auto)")
+    return name

@@ -21,6 +21,7 @@ import numpy as np
 
 from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.magicwarp import MIN_POINTS, MagicWarp, match, refine
+from deepslam.frontend.nets import resolve_device
 from deepslam.geometry import in_image, warp_points
 
 Frontend = Literal["magic", "classical", "oracle"]
@@ -284,6 +285,9 @@ class TrackerConfig:
         default=0.5,
         metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
     )
+    device: Literal["auto", "cpu", "cuda"] = field(
+        default="cpu", metadata={"help": "where the magic front-end's networks run: cpu, cuda, or auto"}
+    )
     budget: int = 150  # points a front-end reports at most
 
 
@@ -302,7 +306,8 @@ def magic_detector(config: TrackerConfig) -> MagicPoint:
         options["upsample"] = config.detector_scale
         if config.detector == "S":
             options["grid_shifts"] = 4 if config.detector_scale == 1 else 2
-    return MagicPoint.pretrained(config.detector, threshold=0.001, top_k=config.budget, **options)
+    device = resolve_device(config.device)
+    return MagicPoint.pretrained(config.detector, threshold=0.001, top_k=config.budget, device=device, **options)
 
 
 def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = True) -> Tracker:
@@ -315,7 +320,7 @@ def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = Tru
         carry = carry_default if config.carry is None else config.carry
         return MagicTracker(
             detector,
-            MagicWarp.pretrained(),
+            MagicWarp.pretrained(device=resolve_device(config.device)),
             iterations=config.warp_iterations,
             ransac=config.ransac,
             refine=config.refine,

@@ -312,20 +312,21 @@ def _round_config(config: AdaptConfig, round_: int, weights: Path) -> AdaptConfi
 def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
     from deepslam.frontend.evaluation.detector import SHAPES_EXTRACTION, evaluate_set, sequence_repeatability
 
-    synthetic = round(config.batch * config.synthetic_share)
     stream = None
 
-    def step_fn(step: int, rng: np.random.Generator) -> dict:
+    def step_fn(step: int, rng: np.random.Generator, batch: int) -> dict:
         nonlocal stream
         stream = stream or training_stream(rng, config.size, clean_share=0.25)
-        images, targets = photo_batch(views, labels, rng, config.batch - synthetic, config)
+        synthetic = round(batch * config.synthetic_share)
+        images, targets = photo_batch(views, labels, rng, batch - synthetic, config)
         if synthetic:
             shapes_images, corners = zip(*(next(stream) for _ in range(synthetic)), strict=True)
             images = np.concatenate([images, np.stack(shapes_images)])
             targets = np.concatenate([targets, _one_hot(cell_labels(list(corners), config.size, rng))])
-        x = torch.from_numpy(images).float().div_(255.0)[:, None]
+        device = next(net.parameters()).device
+        x = torch.from_numpy(images).float().div_(255.0)[:, None].to(device)
         log_p = torch.log_softmax(net(x), dim=1)
-        return {"loss": -(torch.from_numpy(targets) * log_p).sum(1).mean()}
+        return {"loss": -(torch.from_numpy(targets).to(device) * log_p).sum(1).mean()}
 
     def validate(model: MagicPointNet) -> dict:
         detector = MagicPoint(model, threshold=0.001, subpixel="centroid")

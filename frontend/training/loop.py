@@ -11,18 +11,21 @@ which is then what validation scores, ``best.pt`` keeps and ``export_weights`` s
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 import numpy as np
 import torch
+import torch.distributed as dist
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from deepslam.frontend.nets import load_checkpoint, network_config
+from deepslam.frontend.nets import load_checkpoint, network_config, resolve_device
 from deepslam.frontend.training.surgery import config_of, load_weights
 from deepslam.progress import progress_bar
 
@@ -48,6 +51,9 @@ class LoopConfig:
             "min": 0,
             "max": 0.999999,
         },
+    )
+    device: Literal["auto", "cpu", "cuda"] = field(
+        default="cpu", metadata={"help": "where to train: cpu, cuda, or auto (cuda when there is one)"}
     )
     init: str = field(
         default="",
@@ -85,12 +91,13 @@ def save_checkpoint(
     extra: dict,
 ) -> None:
     """Write a checkpoint atomically (a killed write never leaves a broken file). ``extra`` may hold
-    "ema", the averaged model's state dict."""
+    "ema", the averaged model's state dict, and "rngs", the generator states of every rank."""
     state = {
         "model": model.state_dict(),
         "optimizer": optimizer.state_dict(),
         "step": step,
         "rng": rng.bit_generator.state,
+        "rngs": [rng.bit_generator.state],  # every rank's data stream (``extra`` has them for several ranks)
         "config": asdict(model.config),
         "train_config": asdict(config),
         **extra,
@@ -114,6 +121,47 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
     torch.save(kept, tmp)
     tmp.replace(out)
     return kept
+
+
+@dataclass(frozen=True)
+class Ranks:
+    """This process's place in a data-parallel run started by torchrun (rank 0 of 1 otherwise)."""
+
+    rank: int = 0
+    world: int = 1
+
+    @staticmethod
+    def join(device: torch.device) -> Ranks:
+        """Join the process group torchrun set up (gloo on CPU, nccl on CUDA), if there is one."""
+        world = int(os.environ.get("WORLD_SIZE", "1"))
+        if world == 1:
+            return Ranks()
+        if not dist.is_initialized():
+            dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        return Ranks(dist.get_rank(), dist.get_world_size())
+
+    @property
+    def leader(self) -> bool:
+        return self.rank == 0
+
+    def average_gradients(self, model: torch.nn.Module) -> None:
+        for parameter in model.parameters():
+            if parameter.grad is not None:
+                dist.all_reduce(parameter.grad)
+                parameter.grad /= self.world
+
+    def share(self, model: torch.nn.Module) -> None:
+        """Rank 0's parameters and buffers (BatchNorm statistics) to every rank."""
+        for tensor in [*model.parameters(), *model.buffers()]:
+            dist.broadcast(tensor.data, 0)
+
+    def check_in_step(self, model: torch.nn.Module, step: int) -> None:
+        """RuntimeError unless every rank holds the same parameters."""
+        total = torch.stack([p.detach().double().sum() for p in model.parameters()]).sum().reshape(1)
+        totals = [torch.zeros_like(total) for _ in range(self.world)]
+        dist.all_gather(totals, total)
+        if any(not torch.equal(t, totals[0]) for t in totals):
+            raise RuntimeError(f"the ranks' parameters differ after step {step}")
 
 
 def _scored(figures: dict) -> set[str]:
@@ -159,20 +207,26 @@ def train(
     model: torch.nn.Module,
     config: LoopConfig,
     out_dir: Path,
-    step_fn: Callable[[int, np.random.Generator], dict[str, torch.Tensor]],
+    step_fn: Callable[[int, np.random.Generator, int], dict[str, torch.Tensor]],
     validate_fn: Callable[[torch.nn.Module], dict[str, float]],
     score_key: str,
 ) -> dict:
-    """Run ``config.iterations`` optimisation steps (resuming from ``out_dir/last.pt``).
+    """Run ``config.iterations`` optimisation steps (resuming from ``out_dir/last.pt``) on
+    ``config.device``; under torchrun, data-parallel: each rank draws ``batch / ranks`` examples from its
+    own stream, gradients are averaged, rank 0 validates and writes checkpoints.
 
-    ``step_fn(step, rng)`` builds a batch and returns {"loss": tensor, ...}; ``validate_fn(model)``
-    returns figures, ``score_key`` among them (higher is better) choosing ``best.pt``.
-    Returns the last validation figures.
+    ``step_fn(step, rng, batch)`` builds ``batch`` examples on the model's device and returns {"loss":
+    tensor, ...}; ``validate_fn(model)`` returns figures, ``score_key`` among them (higher is better)
+    choosing ``best.pt``. Returns the last validation figures (rank 0; {} on the other ranks).
     """
+    device = torch.device(resolve_device(config.device))
+    ranks = Ranks.join(device)
+    if config.batch % ranks.world:
+        raise ValueError(f"--batch {config.batch} does not divide among {ranks.world} ranks; use a multiple")
+    model.to(device)
     out_dir.mkdir(parents=True, exist_ok=True)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    rng = np.random.default_rng(config.seed)
-    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed if ranks.world == 1 else [config.seed, ranks.rank])
     step, best, elapsed, history = 0, -np.inf, 0.0, []
     last = out_dir / "last.pt"
     if last.exists():
@@ -182,11 +236,14 @@ def train(
                 f"{last} holds a network of another shape ({network_config(state)}), not "
                 f"{asdict(model.config)}: resume it with its own options, or train into another folder"
             )
+        streams = state.get("rngs", [state["rng"]])
+        if len(streams) != ranks.world:
+            raise ValueError(f"{last} was trained by {len(streams)} ranks, not {ranks.world}: resume it with as many")
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         for group in optimizer.param_groups:  # resuming with another --lr applies it (a manual schedule)
             group["lr"] = config.lr
-        rng.bit_generator.state = state["rng"]
+        rng.bit_generator.state = streams[ranks.rank]
         step, best, elapsed, history = state["step"], state["best"], state["elapsed"], state["history"]
         log.info(f"resuming from {last} at step {step}")
     else:
@@ -194,15 +251,17 @@ def train(
         if config.init:
             load_weights(model, Path(config.init))
             log.info(f"starting from the weights of {config.init}")
+    if ranks.world > 1:
+        ranks.share(model)
     ema = _moving_average(model, config.ema, state)
     scored = ema.module if ema else model
     figures: dict[str, float] = history[-1] if history else {}
-    bar = progress_bar(total=config.iterations, initial=step, unit="it")
+    bar = progress_bar(total=config.iterations, initial=step, unit="it", disable=not ranks.leader)
     losses: list[float] = []
     started = time.time() - elapsed
     while step < config.iterations:
         model.train()
-        out = step_fn(step, rng)
+        out = step_fn(step, rng, config.batch // ranks.world)
         if not torch.isfinite(out["loss"]) or not all(torch.isfinite(p).all() for p in model.parameters()):
             raise RuntimeError(
                 f"training diverged at step {step} (loss {float(out['loss']):.4g}); {out_dir} keeps its last "
@@ -210,7 +269,13 @@ def train(
             )
         optimizer.zero_grad()
         out["loss"].backward()
+        if ranks.world > 1:
+            ranks.average_gradients(model)
         optimizer.step()
+        if ranks.world > 1:
+            for buffer in model.buffers():  # BatchNorm statistics: rank 0's, so that every rank holds the same
+                dist.broadcast(buffer.data, 0)
+            ranks.check_in_step(model, step + 1)
         losses.append(float(out["loss"].detach()))
         if ema:
             ema.update_parameters(model)
@@ -221,25 +286,54 @@ def train(
             | {k: f"{v:.3g}" for k, v in figures.items() if k != "step"}
         )
         if step % config.validate_every == 0 or step == config.iterations:
-            scored.eval()
-            with torch.no_grad():
-                measured = {name: float(value) for name, value in validate_fn(scored).items()}  # plain data
-                figures = {"step": step, "wall_s": round(time.time() - started, 1), **measured}
-                figures["train_loss"] = float(np.mean(losses)) if losses else float("nan")  # since the last one
-                losses = []
-            if history and _scored(history[-1]) != _scored(figures):
-                best = -np.inf  # a resumed run whose validation has changed: the old best does not compare
-                bar.write("the validation figures differ from the checkpoint's: best.pt restarts from here")
-            history.append(figures)
-            (out_dir / "history.json").write_text(json.dumps(history, indent=1))
-            save_curves(history, out_dir / "curves.png")
-            bar.write(json.dumps(figures))
-            extra = {"elapsed": time.time() - started, "history": history} | (
-                {"ema": ema.module.state_dict()} if ema else {}
-            )
-            if figures[score_key] > best:
-                best = figures[score_key]
-                save_checkpoint(out_dir / "best.pt", model, optimizer, step, rng, config, {"best": best, **extra})
-            save_checkpoint(last, model, optimizer, step, rng, config, {"best": best, **extra})
+            streams = _gather_streams(rng, ranks)
+            if ranks.leader:
+                figures, best = _validate_and_save(
+                    model, scored, ema, optimizer, rng, config, out_dir, validate_fn, score_key,
+                    (step, best, started, history, losses, streams, bar),
+                )  # fmt: skip
+            losses = []
+            if ranks.world > 1:
+                dist.barrier()
     bar.close()
-    return figures
+    return figures if ranks.leader else {}
+
+
+def _gather_streams(rng: np.random.Generator, ranks: Ranks) -> list:
+    """Every rank's generator state, in rank order (so that a resumed run continues every stream)."""
+    if ranks.world == 1:
+        return [rng.bit_generator.state]
+    streams: list = [None] * ranks.world
+    dist.all_gather_object(streams, rng.bit_generator.state)
+    return streams
+
+
+def _validate_and_save(model, scored, ema, optimizer, rng, config, out_dir, validate_fn, score_key, progress):
+    """Validate (on the CPU copy of what is scored), extend the history and curves, write best.pt and
+    last.pt; returns (figures, best)."""
+    step, best, started, history, losses, streams, bar = progress
+    scored.eval()
+    with torch.no_grad():
+        measured = {name: float(value) for name, value in validate_fn(_on_cpu(scored)).items()}  # plain data
+    figures = {"step": step, "wall_s": round(time.time() - started, 1), **measured}
+    figures["train_loss"] = float(np.mean(losses)) if losses else float("nan")  # since the last validation
+    if history and _scored(history[-1]) != _scored(figures):
+        best = -np.inf  # a resumed run whose validation has changed: the old best does not compare
+        bar.write("the validation figures differ from the checkpoint's: best.pt restarts from here")
+    history.append(figures)
+    (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    save_curves(history, out_dir / "curves.png")
+    bar.write(json.dumps(figures))
+    extra = {"elapsed": time.time() - started, "history": history, "rngs": streams}
+    if ema:
+        extra["ema"] = {k: v.cpu() for k, v in ema.module.state_dict().items()}
+    if figures[score_key] > best:
+        best = figures[score_key]
+        save_checkpoint(out_dir / "best.pt", model, optimizer, step, rng, config, {"best": best, **extra})
+    save_checkpoint(out_dir / "last.pt", model, optimizer, step, rng, config, {"best": best, **extra})
+    return figures, best
+
+
+def _on_cpu(model: torch.nn.Module) -> torch.nn.Module:
+    """``model`` itself on the CPU, or a CPU copy of it (validation runs the CPU inference code)."""
+    return model if next(model.parameters()).device.type == "cpu" else copy.deepcopy(model).cpu()

@@ -67,17 +67,20 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int
     from deepslam.sim.shapes import evaluation_set
 
     torch.set_num_threads(config.threads)
-    model = MagicPointNet(VARIANTS[config.variant])
+    with torch.random.fork_rng():  # the initial weights come from the seed, the global generator is left alone
+        torch.manual_seed(config.seed)
+        model = MagicPointNet(VARIANTS[config.variant])
     clean_validation = evaluation_set(config.validation_per_category, seed=config.seed + 1000, size=size)
     validation = noisy_set(clean_validation, seed=config.seed + 1000)
     loss_fn = nn.CrossEntropyLoss()
     stream = None  # made on the first step, from the (possibly resumed) generator state
 
-    def step_fn(step: int, rng: np.random.Generator) -> dict:
+    def step_fn(step: int, rng: np.random.Generator, batch: int) -> dict:
         nonlocal stream
         stream = stream or training_stream(rng, size, clean_share=config.clean_share)
-        images, labels = make_batch(stream, rng, config.batch, size)
-        return {"loss": loss_fn(model(images), labels)}
+        images, labels = make_batch(stream, rng, batch, size)
+        device = next(model.parameters()).device
+        return {"loss": loss_fn(model(images.to(device)), labels.to(device))}
 
     def validate(net: MagicPointNet) -> dict:
         detector = MagicPoint(net, **SHAPES_EXTRACTION)

@@ -150,9 +150,11 @@ def motion_at(config: TrainConfig, step: int) -> float:
     return config.motion_start + (config.motion_max - config.motion_start) * progress
 
 
-def make_batch(rng: np.random.Generator, config: TrainConfig, pairs: PairConfig) -> tuple[torch.Tensor, ...]:
-    """Inputs (B, 130, Hc, Wc), normalised true matches (B, M, 2) x2 and their mask (B, M)."""
-    samples = [sample_pair(rng, pairs) for _ in range(config.batch)]
+def make_batch(
+    rng: np.random.Generator, batch: int, config: TrainConfig, pairs: PairConfig
+) -> tuple[torch.Tensor, ...]:
+    """``batch`` pairs: inputs (B, 130, Hc, Wc), normalised true matches (B, M, 2) x2 and their mask (B, M)."""
+    samples = [sample_pair(rng, pairs) for _ in range(batch)]
     cells = np.concatenate(
         [
             points_to_cells_batch([s.points_a for s in samples], pairs.size),
@@ -161,8 +163,8 @@ def make_batch(rng: np.random.Generator, config: TrainConfig, pairs: PairConfig)
         axis=1,
     )
     N = normalizer(pairs.size)
-    true = np.zeros((2, config.batch, config.max_matches, 2), np.float32)
-    mask = np.zeros((config.batch, config.max_matches), bool)
+    true = np.zeros((2, batch, config.max_matches, 2), np.float32)
+    mask = np.zeros((batch, config.max_matches), bool)
     for b, s in enumerate(samples):
         pick = rng.permutation(len(s.true_a))[: config.max_matches]
         for side, points in enumerate((s.true_a, s.true_b)):
@@ -180,12 +182,15 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), model_config: MagicW
     model_config = model_config or MagicWarpConfig()
     if (out_dir / "last.pt").exists():
         model_config = MagicWarpConfig(**read_weights(out_dir / "last.pt")[0])
-    model = MagicWarpNet(model_config)
+    with torch.random.fork_rng():  # the initial weights come from the seed, the global generator is left alone
+        torch.manual_seed(config.seed)
+        model = MagicWarpNet(model_config)
     validation = validation_set(seed=config.seed + 1000)
 
-    def step_fn(step: int, rng: np.random.Generator) -> dict:
+    def step_fn(step: int, rng: np.random.Generator, batch: int) -> dict:
         motion = motion_at(config, step)
-        cells, true_a, true_b, mask = make_batch(rng, config, config.pairs(motion))
+        device = next(model.parameters()).device
+        cells, true_a, true_b, mask = (t.to(device) for t in make_batch(rng, batch, config, config.pairs(motion)))
         return {
             "loss": warp_loss(model(cells), true_a, true_b, mask, config.loss_weighting, config.cauchy),
             "motion": torch.tensor(motion),
