@@ -8,6 +8,7 @@ is seeded by its own item, and each worker runs one torch thread). A piece that 
 from __future__ import annotations
 
 import os
+import socket
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Callable, Sequence, TypeVar
@@ -90,6 +91,8 @@ def _on_ray(fn, items, workers: Workers, describe, progress) -> list:
     except ImportError:
         raise ValueError('--ray needs Ray: pip install -e ".[ray]" (or pip install ray)') from None
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    if workers.ray_address != "local":
+        _check_reachable(workers.ray_address)
     try:
         if workers.ray_address == "local":
             ray.init(num_cpus=workers.jobs, include_dashboard=False, _node_ip_address="127.0.0.1",
@@ -117,6 +120,18 @@ def _on_ray(fn, items, workers: Workers, describe, progress) -> list:
         return results
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str, timeout_s: float = 3.0) -> None:
+    """ValueError unless something listens at ``address`` (host:port, as `ray start --head` prints it)."""
+    host, _, port = address.rpartition(":")
+    try:
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s):
+            return
+    except (OSError, ValueError):
+        raise ValueError(
+            f"cannot reach a Ray cluster at {address} (give host:port as `ray start --head` printed it)"
+        ) from None
 
 
 def _ray_piece(fn, item):

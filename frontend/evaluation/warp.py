@@ -68,7 +68,7 @@ def validation_figures(net: MagicWarpNet, validation: list[tuple[str, PointSetPa
     """Mean match repeatability per motion at the paper's breakdown magnitudes ("rep@paper:rotation", ...),
     the percentage of pairs still at 90% or more there ("pass@paper"), and the mean repeatability over all
     pairs as "score". Unlike repeatability at fixed magnitudes of one density, it ranks checkpoints as the
-    breakdown table's shortfall from the paper does (frontend/weights/magicwarp.md, session 15)."""
+    breakdown table's shortfall from the paper does (frontend/weights/magicwarp.md)."""
     warp = MagicWarp(net)
     H = warp.estimate_batch([(p.points_a, p.points_b) for _, p in validation], SIZE)
     reps = np.array([match_repeatability(h, pair) for h, (_, pair) in zip(H, validation, strict=False)])

@@ -297,11 +297,20 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
             raise ValueError(
                 f"{folder} was trained on labels of another detector, photographs or options; train into another --out"
             )
+        if _finished(folder, config.iterations):  # a finished round needs neither its labels nor training
+            log.info(f"{folder} has finished its {config.iterations} steps")
+            detector_weights = folder / "best.pt"
+            continue
         views, labels = labelled_views(folder / "labels", fold_batchnorm(net), source, key, config)
         round_config = _round_config(config, round_, detector_weights)
         figures = _train_round(net, folder, views, labels, round_config, sequences, (shapes_clean, shapes_noisy))
         detector_weights = folder / "best.pt"
     return figures
+
+
+def _finished(folder: Path, iterations: int) -> bool:
+    last = folder / "last.pt"
+    return last.exists() and load_checkpoint(last, needs=("step",))["step"] >= iterations
 
 
 def _round_config(config: AdaptConfig, round_: int, weights: Path) -> AdaptConfig:

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Regenerates every figure in docs/ from the shipped weights (about an hour with JOBS=2 on two cores; not part
+# of CI). Each command writes its .txt, .json and plots into its --out folder.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+JOBS=${JOBS:-2}
+TIME="/usr/bin/time -f %e -o"  # wall seconds of a command, into a file
+deepslam eval realimages --out docs/eval --jobs "$JOBS"
+deepslam eval realimages --out docs/eval --jobs "$JOBS" --jitter 2
+deepslam eval detector --out docs/eval --jobs "$JOBS" \
+  --detectors MagicPointS MagicPointS-HA MagicPointS-2x FAST Harris Shi
+deepslam eval detector --out docs/eval/detector_L --jobs "$JOBS" --per-category 300 --sweep-per-category 10 \
+  --detectors MagicPointL
+deepslam eval warp --out docs/eval --jobs "$JOBS"
+# the pipeline sweep on the circle without lighting changes (the full default sweep: drop those two options)
+deepslam eval pipeline --out docs/eval --jobs "$JOBS" --trajectories circle --lighting 0
+deepslam eval pipeline --out docs/eval/pipeline_S-HA --jobs "$JOBS" --trajectories circle --lighting 0 \
+  --frontends magic --detector S-HA
+# timings, one process at a time
+deepslam bench detector --out docs/eval
+deepslam bench warp --out docs/eval
+deepslam bench pipeline --out docs/eval
+deepslam bench pipeline --out docs/eval/bench_S-HA --detector S-HA
+deepslam bench pipeline --out docs/eval/bench_long --frames 5000
+# speed-ups on this machine: a sweep in one process and in two, and MagicPoint S training on one rank and two
+SWEEP="deepslam eval pipeline --trajectories circle --lighting 0 --noise 0 --worlds plane --seeds 6 -q"
+$TIME docs/eval/seconds_sweep_jobs1.txt $SWEEP --out out/speedup1
+$TIME docs/eval/seconds_sweep_jobs2.txt $SWEEP --out out/speedup2 --jobs 2
+TRAIN="train magicpoint --iterations 60 --batch 32 --validate-every 60 --validation-per-category 1 -q"
+$TIME docs/eval/seconds_train_ranks1.txt deepslam $TRAIN --out out/ranks1
+$TIME docs/eval/seconds_train_ranks2.txt python -m torch.distributed.run --standalone --nproc_per_node 2 \
+  -m deepslam $TRAIN --out out/ranks2
+# the default run beside the oracle and the classical front-end, its drift plot and report
+deepslam run --out out/run.mcap | tee docs/eval/run_default.txt
+deepslam run --frontend oracle --out out/oracle.mcap
+deepslam run --frontend classical --out out/classical.mcap
+deepslam drift out/run.mcap out/oracle.mcap out/classical.mcap --out docs | tee docs/eval/drift_default.txt
+deepslam report out/run.mcap out/oracle.mcap out/classical.mcap --out out/report.html
