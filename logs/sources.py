@@ -210,7 +210,30 @@ def _seconds_to_ns(text: str) -> int:
     return int(whole) * 1_000_000_000 + int((fraction + "000000000")[:9])  # exact: no float rounding
 
 
-class TumFolder:
+class _ImageFolder:
+    """A dataset folder of image files: ``stamps`` (ns), ``files``, ``truth`` {frame index: T_world_cam},
+    ``rectify`` (set by the subclass)."""
+
+    stamps: list[int]
+    files: list[Path]
+    truth: dict[int, np.ndarray]
+    rectify: Rectifier
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    @property
+    def frames_with_truth(self) -> int:
+        return len(self.truth)
+
+    def frames(self) -> Iterator[SourceFrame]:
+        for index, (stamp, path) in enumerate(zip(self.stamps, self.files, strict=True)):
+            image = _read_image(path)
+            image = to_gray(image, "bgr8") if image.ndim == 3 else image
+            yield SourceFrame(stamp, self.rectify(image), self.rectify.K, self.truth.get(index))
+
+
+class TumFolder(_ImageFolder):
     """A TUM RGB-D folder: rgb.txt (timestamp, image file), groundtruth.txt (timestamp tx ty tz qx qy qz qw)
     if present. TUM folders carry no calibration: ``--calibration`` is needed."""
 
@@ -236,19 +259,6 @@ class TumFolder:
             raise SourceError(f"{root}: a TUM folder carries no calibration; give --calibration FILE")
         self.calibration = Calibration.from_yaml(options.calibration, native)
         self.rectify = Rectifier(self.calibration, _pipeline_size(options.size, native))
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    @property
-    def frames_with_truth(self) -> int:
-        return len(self.truth)
-
-    def frames(self) -> Iterator[SourceFrame]:
-        for index, (stamp, path) in enumerate(zip(self.stamps, self.files, strict=True)):
-            image = _read_image(path)
-            image = to_gray(image, "bgr8") if image.ndim == 3 else image
-            yield SourceFrame(stamp, self.rectify(image), self.rectify.K, self.truth.get(index))
 
 
 def _read_image(path: Path) -> np.ndarray:
@@ -276,7 +286,7 @@ def _image_sizes(files: list[Path]) -> tuple[int, int]:
 # ---------------------------------------------------------------- EuRoC / ASL
 
 
-class EurocFolder:
+class EurocFolder(_ImageFolder):
     """An EuRoC/ASL folder (``cam0/`` directly or under ``mav0/``): cam0/data.csv (timestamp ns, file),
     cam0/sensor.yaml (intrinsics, distortion, T_BS), and state_groundtruth_estimate0/data.csv (the body's
     pose) if present; the camera's pose is the body's times T_BS."""
@@ -319,19 +329,6 @@ class EurocFolder:
         # EuRoC: p_RS_R x y z, then q_RS w x y z
         poses = {j: pose_matrix(np.array(rows[j][1:4]), np.array([*rows[j][5:8], rows[j][4]])) for j in pairs.values()}
         return {i: poses[j] @ T_BS for i, j in pairs.items()}
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    @property
-    def frames_with_truth(self) -> int:
-        return len(self.truth)
-
-    def frames(self) -> Iterator[SourceFrame]:
-        for index, (stamp, path) in enumerate(zip(self.stamps, self.files, strict=True)):
-            image = _read_image(path)
-            image = to_gray(image, "bgr8") if image.ndim == 3 else image
-            yield SourceFrame(stamp, self.rectify(image), self.rectify.K, self.truth.get(index))
 
 
 def _read_euroc_yaml(path: Path) -> dict:
