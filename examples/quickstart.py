@@ -1,6 +1,6 @@
 """The README's Python example: detect corners in two views and match them without descriptors.
 
-    python examples/quickstart.py
+python examples/quickstart.py
 """
 
 import numpy as np
