@@ -147,6 +147,10 @@ def test_truncated_file_reads_up_to_its_last_whole_chunk(oracle_log, tmp_path):
         assert got.stamp_ns == want.stamp_ns and np.array_equal(got.T_estimate, want.T_estimate)
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _run_until(out: Path, size: int) -> subprocess.Popen:
     """A real `deepslam run` subprocess, returned once its log in progress (``OUT.partial``) has grown
     past ``size`` bytes."""
@@ -154,6 +158,7 @@ def _run_until(out: Path, size: int) -> subprocess.Popen:
         [sys.executable, "-m", "deepslam", "run", "--frontend", "oracle", "--frames", "400", "--out", str(out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
+        preexec_fn=_default_sigint,  # as from a terminal, even where the test runner was started with Ctrl-C ignored
     )
     partial = partial_path(out)
     deadline = time.time() + 240
