@@ -167,3 +167,14 @@ def test_ray_without_ray_says_how_to_get_it(tmp_path, capsys):
         pass
     assert main(["eval", "warp", "--runs", "1", "--ray", "--out", str(tmp_path)]) == 1
     assert 'pip install -e ".[ray]"' in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_local_ray_cluster_gives_the_serial_bytes(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+    argv = ["eval", "realimages", "--frames", "2", "--detectors", "Harris", "-q"]
+    assert main([*argv, "--out", str(tmp_path / "serial")]) == 0
+    assert main([*argv, "--out", str(tmp_path / "ray"), "--ray", "--jobs", "2"]) == 0
+    name = "realimages.json"
+    assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "ray" / name).read_bytes()
