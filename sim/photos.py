@@ -17,11 +17,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-BENCHMARK = (
-    "camera", "brick", "grass", "gravel", "coins", "text", "page", "clock", "astronaut", "coffee", "chelsea", "cat",
-    "rocket", "checkerboard",
+WORLD_TEXTURES = (
+    "camera", "brick", "grass", "gravel", "coins", "text", "page", "clock", "astronaut", "coffee", "chelsea", "rocket",
 )  # fmt: skip
-"""scikit-image photographs of the worlds' textures and the real-image evaluation (``cat`` is ``chelsea``)."""
+"""scikit-image photographs the simulated worlds are textured with (``sim.world``)."""
+REAL_IMAGE_EVALUATION = (
+    "camera", "brick", "coins", "text", "page", "clock", "astronaut", "coffee", "chelsea", "rocket", "checkerboard",
+)  # fmt: skip
+"""scikit-image photographs of ``deepslam eval realimages``."""
+BENCHMARK = (*dict.fromkeys(WORLD_TEXTURES + REAL_IMAGE_EVALUATION), "cat")
+"""Every benchmark photograph (``cat`` is ``chelsea``): never trained or validated on."""
 
 BUILTIN = {  # name -> loader of an image shipped inside an installed package (no download)
     **{f"skimage:{name}": ("skimage", name) for name in (

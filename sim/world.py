@@ -18,25 +18,13 @@ import skimage.data
 from deepslam.geometry import in_image
 from deepslam.sim import noise as noise_module
 from deepslam.sim.camera import invert, project, transform
+from deepslam.sim.photos import WORLD_TEXTURES
 from deepslam.sim.shapes import CATEGORIES, render
 
 CORNER_POOR = ("grass", "gravel")  # textures without corners: natural surfaces a front-end must still cope with
 WorldName = Literal["plane", "room"]
 WORLDS: tuple[str, ...] = get_args(WorldName)
-_PHOTOS = (
-    "camera",
-    "brick",
-    "grass",
-    "gravel",
-    "coins",
-    "text",
-    "page",
-    "clock",
-    "astronaut",
-    "coffee",
-    "chelsea",
-    "rocket",
-)
+_PHOTOS = WORLD_TEXTURES
 
 
 @dataclass

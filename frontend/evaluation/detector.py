@@ -11,6 +11,7 @@ from deepslam.frontend.evaluation.metrics import average_precision, localization
 from deepslam.parallel import Workers, parallel_map
 from deepslam.progress import progress_bar
 from deepslam.sim import noise
+from deepslam.sim.photos import REAL_IMAGE_EVALUATION
 from deepslam.sim.world import photo
 
 Item = tuple[str, np.ndarray, np.ndarray]  # (category, image, corners)
@@ -189,19 +190,7 @@ def save_plots(result: dict, out_dir) -> list:
     return paths
 
 
-PHOTOS = (
-    "camera",
-    "brick",
-    "coins",
-    "text",
-    "page",
-    "clock",
-    "astronaut",
-    "coffee",
-    "chelsea",
-    "rocket",
-    "checkerboard",
-)
+PHOTOS = REAL_IMAGE_EVALUATION
 PAPER_STATIC_R = {  # the paper's 30 Static Corners repeatability: (160x120 clean, noisy, 320x240 clean, noisy)
     "MagicPointL": (0.970, 0.811, 0.959, 0.765),
     "MagicPointS": (0.929, 0.711, 0.920, 0.675),
