@@ -489,12 +489,13 @@ class DeepslamLog:
         from deepslam.logs.reader import read_frames
 
         self.path, self.read = path, read_frames
-        first = next(iter(read_frames(path)))
-        native = first.image.shape
-        self.calibration = Calibration(first.K, (), "none", native)
-        self.rectify = Rectifier(self.calibration, options.size or native) if options.size else None
-        truth = [f.T_groundtruth is not None for f in read_frames(path)]
-        self.count, self.frames_with_truth = len(truth), sum(truth)
+        self.count = self.frames_with_truth = 0
+        for frame in read_frames(path):  # one pass: the camera from the first frame, how many have truth
+            if not self.count:
+                self.calibration = Calibration(frame.K, (), "none", frame.image.shape)
+            self.count += 1
+            self.frames_with_truth += frame.T_groundtruth is not None
+        self.rectify = Rectifier(self.calibration, options.size) if options.size else None
 
     def __len__(self) -> int:
         return self.count

@@ -142,7 +142,8 @@ def simulate(
 ) -> dict:
     """Run one simulated trajectory end to end (logged to ``out`` if given).
 
-    Returns {"estimate", "truth", "drift", "scale", "odometry"}; the drift figures say which scale was used.
+    Returns {"estimate", "truth", "drift", "scale", "odometry", "world", "diagnostics"}; the drift figures say
+    which scale was used.
     """
     if out is not None:
         from deepslam.logs.writer import check_output
@@ -171,6 +172,7 @@ def simulate(
         "smoothed_ate_se3": drift.ate_rmse(odometry.poses(), output.truth),
         "scale": odometry_config.scale,
         "odometry": odometry,
+        "world": scenario.world,
         "diagnostics": output.diagnostics,
     }
 

@@ -16,7 +16,7 @@ from deepslam.backend.odometry import OdometryConfig, Scale
 from deepslam.frontend.tracking import Frontend, TrackerConfig
 from deepslam.parallel import Workers, parallel_map
 from deepslam.sim import trajectories
-from deepslam.sim.scenario import Scenario, ScenarioConfig
+from deepslam.sim.scenario import ScenarioConfig
 from deepslam.sim.world import WorldName
 
 FAILED_SHARE = 0.05
@@ -80,7 +80,7 @@ def run_cell(piece: tuple) -> dict:
     result = simulate(
         scenario, replace(tracker_config, frontend=frontend), OdometryConfig(scale=config.scale), progress=False
     )
-    built = Scenario(scenario).world
+    built = result["world"]
     figures = result["drift"]
     return {
         "seed": seed,
