@@ -2,8 +2,9 @@
 
 Every frame is measured against the current keyframe (a wide baseline: frame-to-frame parallax is a
 pixel or two, too little for H or E), with an extra factor to the keyframe before it when they still
-share tracks; a frame whose median track motion since the keyframe passes ``keyframe_parallax`` pixels
-becomes the next keyframe.
+share tracks; a frame whose median track motion since the keyframe passes ``keyframe_parallax`` pixels,
+or that shares too few tracks with it (or too few the front-end confirms: ``Tracker.confirm``), becomes the
+next keyframe.
 
 Frames come from any source (a simulator or a replayed log) as ``InputFrame``s; the odometry needs no
 simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
@@ -109,8 +110,10 @@ class FrameResult:
     the first), the current estimate ``T_world_cam`` (4, 4), its covariance (6, 6) or None,
     the correspondences (K, 2) as indices into the reference keyframe's and this frame's tracks, the
     scaled measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of that reference
-    keyframe, and stage timings. ``lost``: no relative pose could be measured (``relative.reason`` says
-    why), so the estimate is a guess (no motion since the previous frame)."""
+    keyframe, stage timings, and this frame's points of the correspondences (K, 2) where the pose was
+    measured from them (the front-end may have polished the tracked positions: ``Tracker.confirm``).
+    ``lost``: no relative pose could be measured (``relative.reason`` says why), so the estimate is a
+    guess (no motion since the previous frame)."""
 
     index: int
     tracks: Tracks
@@ -122,6 +125,7 @@ class FrameResult:
     reference: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
     keyframe: bool = False  # this frame became a keyframe
+    measured_points: np.ndarray | None = None  # (K, 2) this frame's points of the correspondences, as measured
 
     @property
     def lost(self) -> bool:
@@ -162,11 +166,12 @@ class Odometry:
             return float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
         return float(rel.t_over_d or 0.0) * self.plane_distance
 
-    def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray]:
-        """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences)."""
+    def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
+        """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences (K, 2),
+        frame j's points of them (K, 2))."""
         tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
-        pairs = shared_tracks(tracks_i, tracks_j)
-        p1, p2 = tracks_i.points[pairs[:, 0]], tracks_j.points[pairs[:, 1]]
+        pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
+        p1 = tracks_i.points[pairs[:, 0]]
         rel = relpose.estimate(p1, p2, frame_j.K, self.model, frame_j.shape, self.last_translation)
         if rel.ok and self.config.scale != "gt" and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K)  # magnitude from the dominant plane
@@ -175,7 +180,7 @@ class Odometry:
         if rel.ok and not rel.rotation_only and rel.model != "static":
             norm = np.linalg.norm(T[:3, 3])
             T[:3, 3] *= self._step_length(i, j, rel) / max(norm, 1e-12)
-        return rel, T, pairs
+        return rel, T, pairs, p2
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
         """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""
@@ -221,7 +226,7 @@ class Odometry:
         kf = self._reference(k, tracks)
         pairs = shared_tracks(self.history[kf][1], tracks)
         self._choose_model(kf, k, pairs)
-        rel, T, pairs = self._measure(kf, k)
+        rel, T, pairs, measured_points = self._measure(kf, k)
         parallax = self._parallax(kf, k, pairs)
         measured = time.perf_counter()
         if rel.ok:
@@ -244,6 +249,7 @@ class Odometry:
         elif (
             self._parallax(current, k, current_pairs) >= self.config.keyframe_parallax
             or len(current_pairs) < self.config.min_shared_tracks
+            or (kf == current and len(pairs) < self.config.min_shared_tracks)  # few confirmed by the front-end
         ):
             if rel.ok and kf == current:
                 self._update_plane_distance(rel, T)
@@ -268,6 +274,7 @@ class Odometry:
                 "covariance": 1e3 * (time.perf_counter() - optimised),
             },
             keyframe=self.keyframe == k,
+            measured_points=measured_points,
         )
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
@@ -301,7 +308,7 @@ class Odometry:
             or len(shared_tracks(self.history[j][1], self.history[k][1])) < self.config.min_shared_tracks
         ):
             return
-        rel, T, pairs = self._measure(j, k)
+        rel, T, pairs, _ = self._measure(j, k)
         if rel.ok and rel.model != "static":
             self.graph.add_between(
                 j,

@@ -3,7 +3,8 @@
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
   snapping and a robust homography fit, checked against the no-motion and constant-motion guesses),
   nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top); a track the detector
-  misses is carried on by that homography.
+  misses is carried on by that homography. The pairs a pose is measured from (a frame and its keyframe)
+  are confirmed and polished by ``frontend.polish`` (``confirm``).
 - ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked), replenished when tracks run low: what a practitioner would build.
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
@@ -13,7 +14,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, get_args
 
 import cv2
@@ -22,6 +23,7 @@ import numpy as np
 from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.magicwarp import MIN_POINTS, MagicWarp, match, refine
 from deepslam.frontend.nets import resolve_device
+from deepslam.frontend.polish import DEFAULT_POLISH, PolishConfig, normalise_contrast, polish
 from deepslam.geometry import in_image, warp_points
 
 Frontend = Literal["magic", "classical", "oracle"]
@@ -31,11 +33,13 @@ SUPPORT_PX = 1.5  # a new detection this close to a previous one moved by a cand
 
 @dataclass
 class Tracks:
-    """One frame's tracked points: pixels (N, 2) float64, track ids (N,) int64, scores (N,)."""
+    """One frame's tracked points: pixels (N, 2) float64, track ids (N,) int64, scores (N,); ``appearance``:
+    the frame as the front-end compares it with later frames (``Tracker.confirm``; uint8 (H, W)), or None."""
 
     points: np.ndarray
     ids: np.ndarray
     scores: np.ndarray
+    appearance: np.ndarray | None = None
 
     @staticmethod
     def empty() -> "Tracks":
@@ -75,6 +79,12 @@ class Tracker:
     def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
         raise NotImplementedError
 
+    def confirm(self, reference: Tracks, current: Tracks, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs (K, 2) of ``reference`` and ``current`` indices a pose may be measured from, and the
+        current frame's points (K, 2) for them: all, where they were tracked (a front-end may check
+        and polish them)."""
+        return pairs, current.points[pairs[:, 1]]
+
 
 def _ransac_filter(pairs: np.ndarray, a: np.ndarray, b: np.ndarray, threshold: float = 1.0) -> np.ndarray:
     """Keep the pairs consistent with one fundamental matrix (MAGSAC); all of them if too few."""
@@ -93,11 +103,12 @@ class MagicTracker(Tracker):
     reported points (the most recently detected first). ``iterations`` applies MagicWarp iteratively;
     ``refine`` polishes its H by snapping and a robust homography fit (``frontend.magicwarp.refine``)
     and lets the previous H and the identity, refined the same way, compete with it (``_homography``);
-    ``ransac`` adds a fundamental-matrix check."""
+    ``ransac`` adds a fundamental-matrix check; ``polish`` (a ``PolishConfig``, or None for a purely
+    geometric tracker) confirms and polishes the pairs a pose is measured from (``confirm``)."""
 
     def __init__(
         self,
-        detector: MagicPoint,
+        detector: MagicPoint | ToppedUpDetector,
         warp: MagicWarp,
         max_dist: float = 3.0,
         iterations: int = 1,
@@ -106,6 +117,7 @@ class MagicTracker(Tracker):
         refine: bool = True,
         carry: bool = True,
         budget: int = 150,
+        polish: PolishConfig | None = DEFAULT_POLISH,
     ):
         super().__init__()
         if iterations < 1 or not max_dist > 0 or max_age < 0 or budget < 1:
@@ -115,7 +127,7 @@ class MagicTracker(Tracker):
             )
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
-        self.refine, self.carry, self.budget = refine, carry, budget
+        self.refine, self.carry, self.budget, self.polish = refine, carry, budget, polish
         self.detections = np.zeros((0, 2))  # the previous frame's detections, MagicWarp's input
         self.last_homography = np.eye(3)
         self.live = np.zeros((0, 2))  # positions of live tracks (detected or carried)
@@ -170,12 +182,27 @@ class MagicTracker(Tracker):
             np.vstack([points, self.live[reported]]),
             np.concatenate([ids, self.live_ids[reported]]),
             np.concatenate([detections[:, 2], np.zeros(reported.sum())]).astype(np.float64),
+            normalise_contrast(image, self.polish.sigma) if self.polish else None,
         )
         self.detections = points
         self.live = np.vstack([points, self.live[keep]])
         self.live_ids = np.concatenate([ids, self.live_ids[keep]])
         self.live_age = np.concatenate([np.zeros(len(points), np.int64), self.live_age[keep] + 1])
         return self.previous
+
+    def confirm(self, reference: Tracks, current: Tracks, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """With ``polish``: only the pairs Lucas-Kanade confirms between the two frames' contrast-normalised
+        images, at the positions it polished them to (``frontend.polish.polish``)."""
+        if self.polish is None or reference.appearance is None or current.appearance is None:
+            return super().confirm(reference, current, pairs)
+        points, confirmed = polish(
+            reference.appearance,
+            current.appearance,
+            reference.points[pairs[:, 0]],
+            current.points[pairs[:, 1]],
+            self.polish,
+        )
+        return pairs[confirmed], points[confirmed]
 
 
 class ClassicalTracker(Tracker):
@@ -265,6 +292,13 @@ class TrackerConfig:
             "S at scale 1 averages four grid shifts)"
         },
     )
+    top_up: bool = field(
+        default=True,
+        metadata={
+            "help": "on a frame where MagicPoint S finds fewer than 40 points (corner-poor walls such as grass), "
+            "add S-HA's detections (--detector S only)"
+        },
+    )
     warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
     refine: bool = field(
         default=True,
@@ -281,6 +315,14 @@ class TrackerConfig:
         },
     )
     ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
+    polish: bool = field(
+        default=True,
+        metadata={
+            "help": "confirm and polish the pairs each pose is measured from (a frame and its keyframe) by "
+            "Lucas-Kanade on contrast-normalised images, dropping those it moves 1.5 px or more (magic "
+            "front-end; --no-polish: correspondences from MagicPoint and MagicWarp alone)"
+        },
+    )
     oracle_noise: float = field(
         default=0.5,
         metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
@@ -299,15 +341,48 @@ DETECTOR_PRESETS: dict[str, dict] = {
 (S at scale 1 then averages four grid shifts)."""
 
 
-def magic_detector(config: TrackerConfig) -> MagicPoint:
-    """The shipped MagicPoint of ``config.detector`` as the magic front-end runs it."""
-    options = dict(DETECTOR_PRESETS[config.detector])
+@dataclass
+class ToppedUpDetector:
+    """``primary``'s detections; on a frame where it finds fewer than ``min_points``, ``secondary``'s that
+    lie farther than ``radius`` pixels from all of them follow, up to ``top_k`` in all (float32 (N, 3)
+    [x, y, score], the primary's first). Corner-poor walls such as grass, where MagicPoint S finds a handful
+    of points, then keep enough to track."""
+
+    primary: MagicPoint
+    secondary: MagicPoint
+    min_points: int = 40
+    radius: float = 4.0
+    top_k: int = 150
+
+    def detect(self, image: np.ndarray) -> np.ndarray:
+        points = self.primary.detect(image)
+        if len(points) >= self.min_points:
+            return points
+        extra = self.secondary.detect(image)
+        if len(points):
+            distance = np.linalg.norm(extra[:, None, :2] - points[None, :, :2], axis=2).min(axis=1)
+            extra = extra[distance > self.radius]
+        return np.vstack([points, extra])[: self.top_k]
+
+
+def _shipped(variant: str, config: TrackerConfig) -> MagicPoint:
+    """The shipped MagicPoint ``variant`` as the magic front-end runs it (``DETECTOR_PRESETS``)."""
+    options = dict(DETECTOR_PRESETS[variant])
     if config.detector_scale is not None:
         options["upsample"] = config.detector_scale
-        if config.detector == "S":
+        if variant == "S":
             options["grid_shifts"] = 4 if config.detector_scale == 1 else 2
     device = resolve_device(config.device)
-    return MagicPoint.pretrained(config.detector, threshold=0.001, top_k=config.budget, device=device, **options)
+    return MagicPoint.pretrained(variant, threshold=0.001, top_k=config.budget, device=device, **options)
+
+
+def magic_detector(config: TrackerConfig) -> MagicPoint | ToppedUpDetector:
+    """The detector of the magic front-end: the shipped MagicPoint of ``config.detector``, topped up by
+    S-HA where S finds too few points when ``config.top_up`` is set."""
+    detector = _shipped(config.detector, config)
+    if config.detector == "S" and config.top_up:
+        return ToppedUpDetector(detector, _shipped("S-HA", replace(config, detector_scale=None)), top_k=config.budget)
+    return detector
 
 
 def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = True) -> Tracker:
@@ -326,6 +401,7 @@ def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = Tru
             refine=config.refine,
             carry=carry,
             budget=config.budget,
+            polish=DEFAULT_POLISH if config.polish else None,
         )
     if config.frontend == "classical":
         return ClassicalTracker(budget=config.budget)

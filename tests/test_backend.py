@@ -162,6 +162,7 @@ def test_planar_world_with_oracle_recovers_the_trajectory():
     assert odometry.model == "homography"
     # exact projections: every track error against the depth buffer is zero, nothing is lost
     assert len(output.track_errors) > 100 and np.abs(output.track_errors).max() < 1e-3
+    assert len(output.pair_errors) > 100 and np.abs(output.pair_errors).max() < 1e-3  # keyframe to frame, too
     assert not any(d.lost for d in output.diagnostics) and output.summary()["lost_frames"] == 0
 
 
@@ -170,6 +171,7 @@ def test_track_errors_measure_pixel_noise_against_the_truth():
     output = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=1.0)), progress=False)
     # two independent 1 px Gaussian offsets: the difference has sigma sqrt(2); median radius 1.18 sqrt(2)
     assert 1.3 < output.summary()["track_error_px"] < 2.1
+    assert 1.3 < output.summary()["pair_error_px"] < 2.1
 
 
 def test_plane_scale_needs_no_ground_truth_steps():
@@ -238,3 +240,21 @@ def test_magic_tracks_are_carried_only_for_homography_relative_poses():
         tracker = TrackerConfig("magic", **options)
         run = simulate(ScenarioConfig(frames=3), tracker, OdometryConfig(method=method), progress=False)
         assert run["odometry"].tracker.carry is carried
+
+
+def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
+    class Choosy(OracleTracker):
+        """Confirms every other pair and moves it by a quarter pixel."""
+
+        def confirm(self, reference, current, pairs):
+            kept = pairs[::2]
+            return kept, current.points[kept[:, 1]] + 0.25
+
+    scenario = Scenario(ScenarioConfig(world="plane", frames=8))
+    odometry = Odometry(Choosy(noise_px=0.0))
+    for frame in simulated_frames(scenario):
+        result = odometry.process(frame)
+        if result.index:
+            shared = np.intersect1d(odometry.history[result.reference][1].ids, result.tracks.ids)
+            assert len(result.correspondences) == (len(shared) + 1) // 2
+            assert result.relative.ok

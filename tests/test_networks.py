@@ -9,6 +9,7 @@ from deepslam.frontend.classical import ClassicalDetector
 from deepslam.frontend.magicpoint import VARIANTS, MagicPointNet
 from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer
 from deepslam.frontend.nets import fold_batchnorm
+from deepslam.frontend.polish import PolishConfig, normalise_contrast, polish
 from deepslam.frontend.training.magicwarp import warp_loss
 from deepslam.sim import shapes
 
@@ -290,3 +291,54 @@ def test_magic_tracker_keeps_its_tracks_when_magicwarp_is_far_off():
     unrefined = MagicTracker(_ScriptedDetector(frames), FarOff(), refine=False, carry=False)
     first, second = unrefined.track(image), unrefined.track(image)
     assert len(np.intersect1d(first.ids, second.ids)) < len(points) / 10  # MagicWarp alone loses its tracks
+
+
+def test_polish_aligns_pairs_through_a_contrast_change_and_drops_the_ones_it_cannot_confirm():
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 2.0)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX)
+    shift = np.array([1.3, -0.7])
+    moved = cv2.warpAffine(texture, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (160, 120), flags=cv2.INTER_CUBIC)
+    reference = texture.astype(np.uint8)
+    current = np.clip(0.6 * moved + 50, 0, 255).astype(np.uint8)  # darker, flatter: raw Lucas-Kanade is biased
+    points = np.stack(np.meshgrid(np.arange(24, 140, 12.0), np.arange(24, 100, 12.0)), -1).reshape(-1, 2)
+    start = points + shift + rng.uniform(-0.8, 0.8, points.shape)  # detections a pixel or so off
+    start[:6] += [4.0, 0.0]  # snapped to a neighbour
+    polished, confirmed = polish(normalise_contrast(reference), normalise_contrast(current), points, start)
+    assert not confirmed[:6].any() and confirmed[6:].mean() > 0.9
+    errors = np.linalg.norm(polished[confirmed] - (points[confirmed] + shift), axis=1)
+    before = np.linalg.norm(start[confirmed] - (points[confirmed] + shift), axis=1)
+    assert np.median(errors) < 0.1 < 0.3 < np.median(before) and errors.max() < 0.25
+    empty, none = polish(reference, current, np.zeros((0, 2)), np.zeros((0, 2)))
+    assert empty.shape == (0, 2) and none.shape == (0,)
+
+
+def test_the_magic_tracker_keeps_what_polishing_needs_only_when_it_polishes():
+    from deepslam.frontend.tracking import MagicTracker
+
+    image = np.zeros((120, 160), np.uint8)
+    points = np.array([[20.0, 30.0], [60.0, 70.0]])
+    for config, has_appearance in ((PolishConfig(), True), (None, False)):
+        tracker = MagicTracker(_ScriptedDetector([points]), MagicWarp.pretrained(), polish=config)
+        tracks = tracker.track(image)
+        assert (tracks.appearance is not None) == has_appearance
+    pairs = np.array([[0, 1], [1, 0]])
+    kept, moved = tracker.confirm(tracks, tracks, pairs)  # without polishing every pair stands, as tracked
+    np.testing.assert_array_equal(kept, pairs)
+    np.testing.assert_array_equal(moved, tracks.points[[1, 0]])
+
+
+def test_a_sparse_frame_is_topped_up_with_the_second_detectors_points_that_are_new():
+    from deepslam.frontend.tracking import ToppedUpDetector
+
+    image = np.zeros((120, 160), np.uint8)
+    sparse = np.array([[10.0, 10.0], [50.0, 50.0]])
+    dense = np.stack([np.arange(8, 152, 6.0), np.full(24, 80.0)], 1)
+    other = np.array([[11.0, 11.0], [30.0, 30.0], [90.0, 20.0]])  # the first within 4 px of a primary point
+    frames = [sparse, dense]
+    detector = ToppedUpDetector(
+        _ScriptedDetector(frames), _ScriptedDetector([other, other]), min_points=10, radius=4.0, top_k=3
+    )
+    topped = detector.detect(image)
+    np.testing.assert_array_equal(topped[:, :2], [[10, 10], [50, 50], [30, 30]])  # primary first, then new ones
+    np.testing.assert_array_equal(detector.detect(image)[:, :2], dense)  # enough points: nothing added

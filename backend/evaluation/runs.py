@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -29,29 +29,35 @@ def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
         yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels), f.depth)
 
 
-def track_errors(previous: InputFrame, tracks_before: Tracks, frame: InputFrame, tracks: Tracks) -> np.ndarray:
-    """Pixel errors (M,) of the tracks followed from ``previous`` to ``frame``: each point of the earlier
-    frame back-projected with the true depth, moved by the true poses and projected, against where the
-    front-end put it. Empty without depth or poses (real data)."""
-    if previous.depth is None or previous.T_world_cam is None or frame.T_world_cam is None:
+def projection_errors(
+    before: InputFrame, points_before: np.ndarray, after: InputFrame, points_after: np.ndarray
+) -> np.ndarray:
+    """Pixel errors (M,) of point pairs: each of ``points_before`` (N, 2) back-projected with the true depth
+    of frame ``before``, moved by the true poses and projected into ``after``, against its partner in
+    ``points_after`` (N, 2); points where the depth buffer saw nothing are left out. Empty without depth or
+    poses (real data)."""
+    if before.depth is None or before.T_world_cam is None or after.T_world_cam is None or len(points_before) == 0:
         return np.zeros(0)
-    _, before, after = np.intersect1d(tracks_before.ids, tracks.ids, return_indices=True)
-    if len(before) == 0:
-        return np.zeros(0)
-    points = tracks_before.points[before]
-    inverse_depth = np.where(np.isfinite(previous.depth), 1.0 / previous.depth, 0.0).astype(np.float32)
+    inverse_depth = np.where(np.isfinite(before.depth), 1.0 / before.depth, 0.0).astype(np.float32)
     sampled = cv2.remap(
-        inverse_depth, *points.astype(np.float32).reshape(-1, 1, 2).transpose(2, 0, 1), cv2.INTER_LINEAR
+        inverse_depth, *np.asarray(points_before, np.float32).reshape(-1, 1, 2).transpose(2, 0, 1), cv2.INTER_LINEAR
     )
     seen = sampled.ravel() > 0  # 1/z is linear across a plane's pixels (z is not); 0 where nothing was hit
     z = 1.0 / np.where(seen, sampled.ravel(), 1.0).astype(np.float64)
-    rays = np.c_[points[seen], np.ones(seen.sum())] @ np.linalg.inv(previous.K).T
-    world = rays * z[seen, None] @ previous.T_world_cam[:3, :3].T + previous.T_world_cam[:3, 3]
-    T_cam_world = np.linalg.inv(frame.T_world_cam)
+    rays = np.c_[points_before[seen], np.ones(seen.sum())] @ np.linalg.inv(before.K).T
+    world = rays * z[seen, None] @ before.T_world_cam[:3, :3].T + before.T_world_cam[:3, 3]
+    T_cam_world = np.linalg.inv(after.T_world_cam)
     camera = world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-    projected = camera @ frame.K.T
+    projected = camera @ after.K.T
     projected = projected[:, :2] / projected[:, 2:3]
-    return np.linalg.norm(projected - tracks.points[after][seen], axis=1)
+    return np.linalg.norm(projected - points_after[seen], axis=1)
+
+
+def track_errors(previous: InputFrame, tracks_before: Tracks, frame: InputFrame, tracks: Tracks) -> np.ndarray:
+    """Pixel errors (M,) of the tracks followed from ``previous`` to ``frame``, where the front-end put them
+    (``projection_errors``)."""
+    _, before, after = np.intersect1d(tracks_before.ids, tracks.ids, return_indices=True)
+    return projection_errors(previous, tracks_before.points[before], frame, tracks.points[after])
 
 
 Sink = Callable[[InputFrame, FrameResult, FrameDiagnostics], None]
@@ -61,13 +67,15 @@ Sink = Callable[[InputFrame, FrameResult, FrameDiagnostics], None]
 class RunOutput:
     """What a run produced: online estimates (N, 4, 4), each frame's pose as the graph had it when the
     frame was done (the poses that are logged); ground truth (N, 4, 4) with NaN where a frame has none, or
-    None when no frame has any; per-frame diagnostics; every track's error against truth (px, empty
-    without truth)."""
+    None when no frame has any; per-frame diagnostics; every track's error against truth from frame to
+    frame, and the error of every pair a pose was measured from (a keyframe's point and this frame's, as
+    measured), in pixels (empty without truth)."""
 
     estimate: np.ndarray
     truth: np.ndarray | None
     diagnostics: list[FrameDiagnostics]
     track_errors: np.ndarray
+    pair_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def summary(self, scale: str = "gt") -> dict:
         """Drift over the frames with ground truth (with ``scale`` "none", only what survives a Sim(3)
@@ -80,11 +88,15 @@ class RunOutput:
                 if scale == "none":
                     figures = {k: figures[k] for k in ("ate_sim3", "path_length", "frames")}
                 figures["frames_with_truth"] = int(known.sum())
-        errors = self.track_errors
         return figures | {
             "lost_frames": sum(d.lost for d in self.diagnostics),
-            "track_error_px": float(np.median(errors)) if len(errors) else float("nan"),
+            "track_error_px": _median(self.track_errors),
+            "pair_error_px": _median(self.pair_errors),
         }
+
+
+def _median(values: np.ndarray) -> float:
+    return float(np.median(values)) if len(values) else float("nan")
 
 
 def run_frames(
@@ -96,11 +108,16 @@ def run_frames(
 ) -> RunOutput:
     """Process frames in order, handing each (frame, result, diagnostics) to ``sink`` as soon as it is
     done. ``odometry.poses()`` has the final smoothed trajectory."""
-    truth, online, diagnostics, errors = [], [], [], []
+    truth, online, diagnostics, errors, pair_errors = [], [], [], [], []
     previous: tuple[InputFrame, Tracks] | None = None
+    kept: dict[int, tuple[InputFrame, Tracks]] = {}  # the frames a later pose may be measured against
     for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
         result = odometry.process(frame)
         frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
+        if result.measured_points is not None and result.reference in kept:
+            reference, reference_tracks = kept[result.reference]
+            reference_points = reference_tracks.points[result.correspondences[:, 0]]
+            pair_errors.append(projection_errors(reference, reference_points, frame, result.measured_points))
         position_error = (
             float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
             if frame.T_world_cam is not None
@@ -124,12 +141,20 @@ def run_frames(
         if sink is not None:
             sink(frame, result, diagnostics[-1])
         previous = (replace(frame, image=None, truth=None), result.tracks)  # what the next frame needs
+        kept[result.index] = previous
+        kept = {i: v for i, v in kept.items() if i in (odometry.keyframe, odometry.previous_keyframe)}
     if not online:
         raise ValueError("no frames to process")
     unknown = np.full((4, 4), np.nan)
     known = [T if T is not None else unknown for T in truth]
     has_truth = any(T is not None for T in truth)
-    return RunOutput(np.stack(online), np.stack(known) if has_truth else None, diagnostics, np.concatenate(errors))
+    return RunOutput(
+        np.stack(online),
+        np.stack(known) if has_truth else None,
+        diagnostics,
+        np.concatenate(errors),
+        np.concatenate(pair_errors) if pair_errors else np.zeros(0),
+    )
 
 
 def simulate(
