@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates every figure in docs/ from the shipped weights (about an hour with JOBS=2 on two cores; not part
+# Regenerates every figure in docs/ from the shipped weights (about two hours with JOBS=2 on two cores; not part
 # of CI). Each command writes its .txt, .json and plots into its --out folder.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,6 +14,10 @@ deepslam eval detector --out docs/eval/detector_L --jobs "$JOBS" --per-category 
 deepslam eval warp --out docs/eval --jobs "$JOBS"
 # the pipeline sweep on the circle without lighting changes (the full default sweep: drop those two options)
 deepslam eval pipeline --out docs/eval --jobs "$JOBS" --trajectories circle --lighting 0
+deepslam eval pipeline --out docs/eval/pipeline_lighting --jobs "$JOBS" --trajectories circle --lighting 0.3
+deepslam eval pipeline --out docs/eval/pipeline_paths --jobs "$JOBS" --trajectories figure8 line random --lighting 0
+deepslam eval pipeline --out docs/eval/pipeline_paths_lighting --jobs "$JOBS" --trajectories figure8 line random \
+  --lighting 0.3
 deepslam eval pipeline --out docs/eval/pipeline_S-HA --jobs "$JOBS" --trajectories circle --lighting 0 \
   --frontends magic --detector S-HA
 # timings, one process at a time

@@ -271,8 +271,9 @@ class OracleTracker(Tracker):
 @dataclass(frozen=True)
 class TrackerConfig:
     """A front-end and its options. The magic front-end runs MagicPoint at the evaluation threshold 0.001
-    with at most 150 points (the oracle's budget), then MagicWarp refined by snapping; its detector is
-    one of ``DETECTOR_PRESETS``. Every documented field is a ``deepslam run`` option."""
+    with at most 150 points (the oracle's budget), then MagicWarp refined by snapping, and confirms and
+    polishes the pairs each pose is measured from; its detector is one of ``DETECTOR_PRESETS`` (S topped
+    up by S-HA on sparse frames). Every documented field is a ``deepslam run`` option."""
 
     frontend: Frontend = field(
         default="magic",
