@@ -25,8 +25,9 @@ class Correspondences:
 class FrameDiagnostics:
     """How one frame went: tracks reported, inliers of its relative pose, whether it was lost (no
     relative pose: the estimate is a guess) and why, the median error (px) of its tracks against the
-    simulator's truth, the position error (m) of its estimate (NaN where there is no truth), and whether
-    it became a keyframe."""
+    simulator's truth (from the frame before), the position error (m) of its estimate, whether it became a
+    keyframe, and the median error (px) against truth of the pairs its pose was measured from (the
+    keyframe's points and this frame's, as measured); NaN where there is no truth."""
 
     tracks: int
     inliers: int
@@ -35,6 +36,7 @@ class FrameDiagnostics:
     correspondence_error_px: float = float("nan")
     position_error_m: float = float("nan")
     keyframe: bool = False
+    pair_error_px: float = float("nan")
 
 
 @dataclass

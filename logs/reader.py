@@ -211,6 +211,7 @@ def _apply(frame: dict, topic: str, message) -> None:
         frame["diagnostics"] = FrameDiagnostics(
             int(message.tracks), int(message.inliers), bool(message.lost), message.reason,
             float(message.correspondence_error_px), float(message.position_error_m), bool(message.keyframe),
+            float(getattr(message, "pair_error_px", float("nan"))),  # logs of 0.2.0 lack it
         )  # fmt: skip
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(

@@ -55,7 +55,7 @@ _DEFINITIONS = {
     "deepslam_msgs/FrameDiagnostics": (
         "# how the front-end and odometry did on one frame; NaN where a figure needs truth the run lacks\n"
         "std_msgs/Header header\nuint32 tracks\nuint32 inliers\nbool lost\nstring reason\n"
-        "float64 correspondence_error_px\nfloat64 position_error_m\nbool keyframe"
+        "float64 correspondence_error_px\nfloat64 position_error_m\nbool keyframe\nfloat64 pair_error_px"
     ),
     "deepslam_msgs/Correspondences": (
         "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"

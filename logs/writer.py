@@ -244,7 +244,8 @@ class LogWriter:
             self._put("/diagnostics/frame", {"header": _header(t, CAMERA_FRAME), "tracks": int(d.tracks),
                       "inliers": int(d.inliers), "lost": bool(d.lost), "reason": d.reason,
                       "correspondence_error_px": float(d.correspondence_error_px),
-                      "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe)}, t)  # fmt: skip
+                      "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe),
+                      "pair_error_px": float(d.pair_error_px)}, t)  # fmt: skip
         self.frames += 1
         self._file.flush()
 

@@ -60,6 +60,8 @@ def test_run_reads_back_bit_for_bit(oracle_log):
         assert frame.diagnostics.position_error_m == pytest.approx(diagnostics.position_error_m)
     assert np.isnan(frames[0].diagnostics.correspondence_error_px)  # nothing tracked into the first frame
     assert 0.3 < np.nanmedian([f.diagnostics.correspondence_error_px for f in frames]) < 1.2  # 0.5 px noise
+    pair_errors = [f.diagnostics.pair_error_px for f in frames]
+    assert np.isnan(pair_errors[0]) and 0.3 < np.nanmedian(pair_errors) < 1.2  # keyframe to frame, the same noise
     meta = read_metadata(path)
     assert meta["frontend"] == "oracle" and meta["scenario"]["seed"] == 3 and meta["version"] == "test"
 

@@ -152,19 +152,27 @@ def frame_strip(run: Run) -> str:
     return _image_tag(base64.b64encode(png.tobytes()).decode(), f"frames of {run.label}")
 
 
+def _median_px(errors: list[float]) -> str:
+    finite = [e for e in errors if np.isfinite(e)]
+    return f"{np.median(finite):.2f}" if finite else "n/a"
+
+
 def _drift_table(runs: list[Run]) -> str:
-    header = ["run", "front-end", "frames", "ATE SE3 m", "ATE Sim3 m", "RPE m", "final %", "lost", "track error px"]
+    header = [
+        "run", "front-end", "frames", "ATE SE3 m", "ATE Sim3 m", "RPE m", "final %", "lost", "track error px",
+        "pair error px",
+    ]  # fmt: skip
     rows = []
     for run in runs:
         poses, diagnostics = run.poses(), [f.diagnostics for f in run.frames if f.diagnostics is not None]
         figures = drift.summary(poses[2], poses[1]) if poses is not None else None
-        errors = [d.correspondence_error_px for d in diagnostics if np.isfinite(d.correspondence_error_px)]
         cells = [
             run.label, str(run.metadata.get("frontend", "?")), str(len(run.frames)),
             *(f"{figures[k]:.4f}" if figures else "n/a" for k in ("ate_se3", "ate_sim3", "rpe_trans")),
             f"{figures['final_drift_pct']:.2f}" if figures else "n/a",
             str(sum(d.lost for d in diagnostics)) if diagnostics else "n/a",
-            f"{np.median(errors):.2f}" if errors else "n/a",
+            _median_px([d.correspondence_error_px for d in diagnostics]),
+            _median_px([d.pair_error_px for d in diagnostics]),
         ]  # fmt: skip
         rows.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
     return "<table><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr>" + "".join(rows) + "</table>"

@@ -114,10 +114,11 @@ def run_frames(
     for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
         result = odometry.process(frame)
         frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
+        frame_pair_errors = np.zeros(0)
         if result.measured_points is not None and result.reference in kept:
             reference, reference_tracks = kept[result.reference]
             reference_points = reference_tracks.points[result.correspondences[:, 0]]
-            pair_errors.append(projection_errors(reference, reference_points, frame, result.measured_points))
+            frame_pair_errors = projection_errors(reference, reference_points, frame, result.measured_points)
         position_error = (
             float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
             if frame.T_world_cam is not None
@@ -130,12 +131,14 @@ def run_frames(
                 int(relative.inliers.sum()) if relative is not None else 0,
                 result.lost,
                 relative.reason if relative is not None else "",
-                float(np.median(frame_errors)) if len(frame_errors) else float("nan"),
+                _median(frame_errors),
                 position_error,
                 result.keyframe,
+                _median(frame_pair_errors),
             )
         )
         errors.append(frame_errors)
+        pair_errors.append(frame_pair_errors)
         truth.append(frame.T_world_cam)
         online.append(result.T_world_cam)
         if sink is not None:
@@ -153,7 +156,7 @@ def run_frames(
         np.stack(known) if has_truth else None,
         diagnostics,
         np.concatenate(errors),
-        np.concatenate(pair_errors) if pair_errors else np.zeros(0),
+        np.concatenate(pair_errors),
     )
 
 
