@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -75,7 +75,7 @@ class RunOutput:
     truth: np.ndarray | None
     diagnostics: list[FrameDiagnostics]
     track_errors: np.ndarray
-    pair_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pair_errors: np.ndarray
 
     def summary(self, scale: str = "gt") -> dict:
         """Drift over the frames with ground truth (with ``scale`` "none", only what survives a Sim(3)
