@@ -112,8 +112,10 @@ class FrameResult:
     scaled measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of that reference
     keyframe, stage timings, and this frame's points of the correspondences (K, 2) where the pose was
     measured from them (the front-end may have polished the tracked positions: ``Tracker.confirm``).
-    ``lost``: no relative pose could be measured (``relative.reason`` says why), so the estimate is a
-    guess (no motion since the previous frame)."""
+    A frame that is not a keyframe reports those points in its ``tracks``; a keyframe keeps the positions
+    the front-end tracked, as later frames are measured against them. ``lost``: no relative pose could be
+    measured (``relative.reason`` says why), so the estimate is a guess (no motion since the previous
+    frame)."""
 
     index: int
     tracks: Tracks
@@ -255,6 +257,8 @@ class Odometry:
                 self._update_plane_distance(rel, T)
             self.previous_keyframe, self.keyframe = current, k
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
+        if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
+            tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
         pose = self.graph.pose(k)
         optimised = time.perf_counter()
         covariance = self.graph.covariance(k) if self.config.covariance else None

@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import nn
 
 from deepslam.frontend.cells import CELL, points_to_cells_batch
@@ -189,19 +190,19 @@ def refine(
 def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: float = 4.0) -> np.ndarray:
     """Index pairs (K, 2) int: warp ``points_a`` by ``H`` into b and snap each to its nearest point of b.
 
-    Pairs are taken in order of increasing distance, each point used at most once (mutually
-    exclusive); pairs farther apart than ``max_dist`` pixels are not matches.
+    Pairs are taken in order of increasing distance (ties by index in a, then in b), each point used at
+    most once (mutually exclusive); pairs farther apart than ``max_dist`` pixels are not matches. The
+    candidates within ``max_dist`` come from k-d trees (scipy), not an (N, M) distance matrix.
     """
     a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
-    distance = np.linalg.norm(warp_points(a, H)[:, None] - b[None], axis=2)
-    rows, cols = np.nonzero(distance <= max_dist)
-    order = np.argsort(distance[rows, cols], kind="stable")
-    used_a, used_b, pairs = set(), set(), []
-    for i, j in zip(rows[order], cols[order], strict=False):
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
+    near = cKDTree(warp_points(a, H)).sparse_distance_matrix(cKDTree(b), max_dist, output_type="ndarray")
+    order = np.lexsort((near["j"], near["i"], near["v"]))
+    used_a, used_b = np.zeros(len(a), bool), np.zeros(len(b), bool)
+    pairs = []
+    for i, j in zip(near["i"][order].tolist(), near["j"][order].tolist(), strict=True):
+        if not (used_a[i] or used_b[j]):
+            used_a[i] = used_b[j] = True
             pairs.append((i, j))
     return np.array(pairs, np.int64).reshape(-1, 2)

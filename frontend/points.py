@@ -9,6 +9,7 @@ from typing import Literal, get_args
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 
 def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
@@ -28,17 +29,16 @@ def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
 def nms_points(points: np.ndarray, radius: float) -> np.ndarray:
     """Greedy non-maximum suppression of (N, 3) [x, y, score] points: keep the best-scoring point
     and drop every other within ``radius`` pixels, in order of score. Returns the kept points sorted
-    by descending score."""
+    by descending score. Only points with a neighbour within ``radius`` (found by a k-d tree) are visited."""
     order = np.argsort(-points[:, 2], kind="stable")
     points = points[order]
     if radius <= 0 or len(points) < 2:
         return points
+    close = cKDTree(points[:, :2].astype(np.float64)).query_pairs(radius, output_type="ndarray")  # (K, 2), i < j
     suppressed = np.zeros(len(points), bool)
-    xy = points[:, :2]
-    for i in range(len(points)):
+    for i, j in close[np.lexsort((close[:, 1], close[:, 0]))].tolist():  # a point's fate is final before it suppresses
         if not suppressed[i]:
-            close = np.sum((xy[i + 1 :] - xy[i]) ** 2, axis=1) <= radius**2
-            suppressed[i + 1 :] |= close
+            suppressed[j] = True
     return points[~suppressed]
 
 

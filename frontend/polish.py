@@ -5,7 +5,9 @@ detection; both pass a robust homography fit and bend the pose. ``polish`` moves
 where Lucas-Kanade aligns the keyframe's patch around its partner (starting from the tracked position,
 no pyramid) and drops the pairs it cannot confirm within ``max_move`` pixels. It aligns contrast-normalised
 images (``normalise_contrast``), so brightness, contrast and shading changes between the two frames do not
-bias it.
+bias it, and it first warps the keyframe by the homography the pairs agree on (the dominant plane's), so
+that the patches it compares are seen from about the same viewpoint: the scale, rotation and perspective
+change since the keyframe would bias it too.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from deepslam.geometry import in_image
+from deepslam.geometry import in_image, warp_points
 
 LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
 
@@ -23,11 +25,14 @@ LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
 @dataclass(frozen=True)
 class PolishConfig:
     """``sigma``: scale (px) of the local mean and deviation ``normalise_contrast`` removes; ``window``:
-    Lucas-Kanade window side (px); ``max_move``: a pair whose point moves this far (px) is dropped."""
+    Lucas-Kanade window side (px); ``max_move``: a pair whose point moves this far (px) is dropped;
+    ``warp_threshold``: inlier threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the
+    keyframe before aligning, or None to align the keyframe as it is."""
 
     sigma: float = 3.0
     window: int = 15
     max_move: float = 1.5
+    warp_threshold: float | None = 3.0
 
 
 DEFAULT_POLISH = PolishConfig()
@@ -42,6 +47,18 @@ def normalise_contrast(image: np.ndarray, sigma: float = PolishConfig.sigma) -> 
     return np.clip(128.0 + 40.0 * deviation / spread, 0, 255).astype(np.uint8)
 
 
+def plane_warp(reference_points: np.ndarray, current_points: np.ndarray, threshold: float | None) -> np.ndarray | None:
+    """The homography (3, 3) most pairs of ``reference_points`` and ``current_points`` (K, 2) agree on
+    (MAGSAC, ``threshold`` px), or None: no threshold, fewer than 8 pairs, or no fit."""
+    if threshold is None or len(reference_points) < 8:
+        return None
+    try:
+        H, _ = cv2.findHomography(reference_points, current_points.astype(np.float64), cv2.USAC_MAGSAC, threshold)
+    except cv2.error:  # degenerate pairs (e.g. collinear points)
+        return None
+    return H if H is not None and np.all(np.isfinite(H)) and abs(H[2, 2]) > 1e-12 else None
+
+
 def polish(
     reference: np.ndarray,
     current: np.ndarray,
@@ -50,16 +67,23 @@ def polish(
     config: PolishConfig = DEFAULT_POLISH,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Align each pair of ``reference_points`` (K, 2) in image ``reference`` and ``current_points`` (K, 2)
-    in ``current`` (both from ``normalise_contrast``). Returns the polished current points (K, 2) float64
-    and a mask (K,) of the pairs Lucas-Kanade confirmed: converged, inside the image, within
-    ``config.max_move`` pixels of where they started."""
+    in ``current`` (both from ``normalise_contrast``), the reference warped first by the pairs' homography
+    (``plane_warp``). Returns the polished current points (K, 2) float64 and a mask (K,) of the pairs
+    Lucas-Kanade confirmed: converged, inside the image, within ``config.max_move`` pixels of where they
+    started."""
     if len(reference_points) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
+    reference_points = np.asarray(reference_points, np.float64)
     start = np.asarray(current_points, np.float32).reshape(-1, 1, 2)
+    H = plane_warp(reference_points, start.reshape(-1, 2), config.warp_threshold)
+    if H is not None:
+        h, w = current.shape
+        reference = cv2.warpPerspective(reference, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        reference_points = warp_points(reference_points, H)
     moved, status, _ = cv2.calcOpticalFlowPyrLK(
         reference,
         current,
-        np.asarray(reference_points, np.float32).reshape(-1, 1, 2),
+        reference_points.astype(np.float32).reshape(-1, 1, 2),
         start.copy(),
         winSize=(config.window, config.window),
         maxLevel=0,

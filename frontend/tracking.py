@@ -99,12 +99,14 @@ class MagicTracker(Tracker):
     every live track's position is carried by it and snapped to the nearest new detection within
     ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
     frames; with ``carry`` it is also reported there (score 0), so that a keyframe keeps its tracks
-    through the detector's misses; carried tracks fill what the detections leave of a ``budget`` of
-    reported points (the most recently detected first). ``iterations`` applies MagicWarp iteratively;
-    ``refine`` polishes its H by snapping and a robust homography fit (``frontend.magicwarp.refine``)
-    and lets the previous H and the identity, refined the same way, compete with it (``_homography``);
-    ``ransac`` adds a fundamental-matrix check; ``polish`` (a ``PolishConfig``, or None for a purely
-    geometric tracker) confirms and polishes the pairs a pose is measured from (``confirm``)."""
+    through the detector's misses. A frame reports at most ``budget`` points: the detections that continue
+    a track, then carried tracks (the most recently detected first), then new detections (all of which are
+    followed, reported or not), so that new points do not crowd out the tracks a keyframe shares.
+    ``iterations`` applies MagicWarp iteratively; ``refine`` polishes its H by snapping and a robust
+    homography fit (``frontend.magicwarp.refine``) and lets the previous H and the identity, refined the
+    same way, compete with it (``_homography``); ``ransac`` adds a fundamental-matrix check; ``polish`` (a
+    ``PolishConfig``, or None for a purely geometric tracker) confirms and polishes the pairs a pose is
+    measured from (``confirm``)."""
 
     def __init__(
         self,
@@ -176,12 +178,14 @@ class MagicTracker(Tracker):
         missed[pairs[:, 0]] = False
         keep = missed & (self.live_age < self.max_age)
         h, w = image.shape
+        continued = int((~fresh).sum())
         reported = keep & self.carry & in_image(self.live, (h, w), margin=0.5)
-        reported &= np.cumsum(reported) <= self.budget - len(points)  # live tracks are ordered by last detection
+        reported &= np.cumsum(reported) <= self.budget - continued  # live tracks are ordered by last detection
+        shown = ~fresh | (np.cumsum(fresh) <= self.budget - continued - int(reported.sum()))
         self.previous = Tracks(
-            np.vstack([points, self.live[reported]]),
-            np.concatenate([ids, self.live_ids[reported]]),
-            np.concatenate([detections[:, 2], np.zeros(reported.sum())]).astype(np.float64),
+            np.vstack([points[shown], self.live[reported]]),
+            np.concatenate([ids[shown], self.live_ids[reported]]),
+            np.concatenate([detections[shown, 2], np.zeros(reported.sum())]).astype(np.float64),
             normalise_contrast(image, self.polish.sigma) if self.polish else None,
         )
         self.detections = points
@@ -192,7 +196,8 @@ class MagicTracker(Tracker):
 
     def confirm(self, reference: Tracks, current: Tracks, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """With ``polish``: only the pairs Lucas-Kanade confirms between the two frames' contrast-normalised
-        images, at the positions it polished them to (``frontend.polish.polish``)."""
+        images (the reference warped by the pairs' homography), at the positions it polished them to
+        (``frontend.polish.polish``)."""
         if self.polish is None or reference.appearance is None or current.appearance is None:
             return super().confirm(reference, current, pairs)
         points, confirmed = polish(
@@ -296,8 +301,8 @@ class TrackerConfig:
     top_up: bool = field(
         default=True,
         metadata={
-            "help": "on a frame where MagicPoint S finds fewer than 40 points (corner-poor walls such as grass), "
-            "add S-HA's detections (--detector S only)"
+            "help": "from a frame where MagicPoint S finds fewer than 40 points (corner-poor walls such as grass) "
+            "until it finds 80 again, add S-HA's detections (--detector S only)"
         },
     )
     warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
@@ -324,6 +329,13 @@ class TrackerConfig:
             "front-end; --no-polish: correspondences from MagicPoint and MagicWarp alone)"
         },
     )
+    polish_warp: bool = field(
+        default=True,
+        metadata={
+            "help": "before polishing, warp the keyframe by the homography its pairs agree on, so that Lucas-Kanade "
+            "compares patches seen from about the same viewpoint (--no-polish-warp: the keyframe as it is)"
+        },
+    )
     oracle_noise: float = field(
         default=0.5,
         metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
@@ -344,20 +356,24 @@ DETECTOR_PRESETS: dict[str, dict] = {
 
 @dataclass
 class ToppedUpDetector:
-    """``primary``'s detections; on a frame where it finds fewer than ``min_points``, ``secondary``'s that
-    lie farther than ``radius`` pixels from all of them follow, up to ``top_k`` in all (float32 (N, 3)
-    [x, y, score], the primary's first). Corner-poor walls such as grass, where MagicPoint S finds a handful
-    of points, then keep enough to track."""
+    """``primary``'s detections; from a frame where it finds fewer than ``min_points`` until one where it
+    finds ``enough_points`` again, ``secondary``'s that lie farther than ``radius`` pixels from all of them
+    follow, up to ``top_k`` in all (float32 (N, 3) [x, y, score], the primary's first). Corner-poor walls
+    such as grass, where MagicPoint S finds a handful of points, then keep enough to track; the two
+    thresholds keep the set of detectors from flipping frame to frame, which would break the tracks."""
 
     primary: MagicPoint
     secondary: MagicPoint
     min_points: int = 40
+    enough_points: int = 80
     radius: float = 4.0
     top_k: int = 150
+    topping_up: bool = field(default=False, init=False)  # the last frame was topped up
 
     def detect(self, image: np.ndarray) -> np.ndarray:
         points = self.primary.detect(image)
-        if len(points) >= self.min_points:
+        self.topping_up = len(points) < (self.enough_points if self.topping_up else self.min_points)
+        if not self.topping_up:
             return points
         extra = self.secondary.detect(image)
         if len(points):
@@ -386,6 +402,13 @@ def magic_detector(config: TrackerConfig) -> MagicPoint | ToppedUpDetector:
     return detector
 
 
+def _polish_config(config: TrackerConfig) -> PolishConfig | None:
+    """The polishing ``config`` asks for, or None."""
+    if not config.polish:
+        return None
+    return DEFAULT_POLISH if config.polish_warp else replace(DEFAULT_POLISH, warp_threshold=None)
+
+
 def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = True) -> Tracker:
     """The front-end ``config`` describes, with the shipped networks for "magic"; ``carry_default`` is
     what ``config.carry`` None means (the caller knows whether poses come from the dominant plane)."""
@@ -402,7 +425,7 @@ def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = Tru
             refine=config.refine,
             carry=carry,
             budget=config.budget,
-            polish=DEFAULT_POLISH if config.polish else None,
+            polish=_polish_config(config),
         )
     if config.frontend == "classical":
         return ClassicalTracker(budget=config.budget)

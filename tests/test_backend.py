@@ -250,11 +250,18 @@ def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
             kept = pairs[::2]
             return kept, current.points[kept[:, 1]] + 0.25
 
-    scenario = Scenario(ScenarioConfig(world="plane", frames=8))
+    scenario = Scenario(ScenarioConfig(world="plane", frames=24))
     odometry = Odometry(Choosy(noise_px=0.0))
+    keyframes = 0
     for frame in simulated_frames(scenario):
         result = odometry.process(frame)
         if result.index:
             shared = np.intersect1d(odometry.history[result.reference][1].ids, result.tracks.ids)
             assert len(result.correspondences) == (len(shared) + 1) // 2
             assert result.relative.ok
+            # a frame reports its points where its pose was measured from them; a keyframe keeps its
+            # detections (the oracle's exact projections), as later frames are measured against them
+            reported = result.tracks.points[result.correspondences[:, 1]]
+            np.testing.assert_allclose(reported, result.measured_points - (0.25 if result.keyframe else 0.0))
+            keyframes += result.keyframe
+    assert keyframes >= 1

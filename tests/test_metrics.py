@@ -68,6 +68,20 @@ def test_repeatability_at_n_takes_the_best_count():
     assert rep == 1.0 and n == 1.0 and error == pytest.approx(0.5)  # the repeated points are 0.5 px apart
 
 
+def test_nms_is_greedy_in_order_of_score():
+    from deepslam.frontend.points import nms_points
+
+    chain = np.array([[10, 10, 0.5], [13, 10, 0.9], [16, 10, 0.7], [40, 40, 0.7]], np.float32)  # 3 px apart
+    kept = nms_points(chain, 4.0)
+    assert kept[:, :2].tolist() == [[13, 10], [40, 40]]  # the best takes both neighbours
+    kept = nms_points(chain[[0, 2, 3]], 4.0)  # without the middle point, 6 px apart: all stay
+    assert kept[:, 2].tolist() == pytest.approx([0.7, 0.7, 0.5])
+    weaker_middle = chain.copy()
+    weaker_middle[1, 2] = 0.1
+    assert nms_points(weaker_middle, 4.0)[:, :2].tolist() == [[16, 10], [40, 40], [10, 10]]  # both ends stay
+    assert len(nms_points(chain, 0)) == 4 and len(nms_points(chain[:0], 4.0)) == 0
+
+
 def test_point_extraction_nms_border_top_k_and_subpixel():
     from deepslam.frontend.points import extract_points
 

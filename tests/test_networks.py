@@ -270,6 +270,12 @@ def test_magic_tracker_carries_a_missed_point_within_its_budget_and_picks_it_up_
     tight = MagicTracker(_ScriptedDetector(frames), MagicWarp.pretrained(), carry=carry, budget=len(points) - 1)
     tight.track(image)
     assert len(tight.track(image).ids) == len(points) - 1  # no room left in the budget for the missed point
+    # new detections come after the tracks a keyframe shares, yet are followed when they are not reported
+    frames = [points[:-5], np.vstack([points[1:-5], points[-5:]]) + shift, points + 2 * shift]
+    crowded = MagicTracker(_ScriptedDetector(frames), MagicWarp.pretrained(), carry=carry, budget=len(points) - 5)
+    first, second, third = (crowded.track(image) for _ in frames)
+    assert len(second.ids) == len(points) - 5 and (first.ids[0] in second.ids) == carry
+    assert len(third.ids) == len(points)  # all continue a track: the five new ones were followed unreported
 
 
 def test_magic_tracker_keeps_its_tracks_when_magicwarp_is_far_off():
@@ -313,6 +319,25 @@ def test_polish_aligns_pairs_through_a_contrast_change_and_drops_the_ones_it_can
     assert empty.shape == (0, 2) and none.shape == (0,)
 
 
+def test_polish_warps_the_keyframe_so_that_a_rotated_and_zoomed_view_aligns():
+    rng = np.random.default_rng(5)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 1.5)
+    reference = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    H = cv2.getRotationMatrix2D((80.0, 60.0), 8.0, 1.12)  # 8 degrees, 12% closer: as after a few frames
+    H = np.vstack([H, [0, 0, 1]])
+    current = cv2.warpPerspective(reference, H, (160, 120), flags=cv2.INTER_CUBIC)
+    points = np.stack(np.meshgrid(np.arange(40, 124, 8.0), np.arange(36, 88, 8.0)), -1).reshape(-1, 2)
+    truth = cv2.perspectiveTransform(points[None], H)[0]
+    start = truth + rng.uniform(-0.8, 0.8, truth.shape)
+    errors = {}
+    for threshold in (3.0, None):
+        config = PolishConfig(warp_threshold=threshold)
+        polished, confirmed = polish(normalise_contrast(reference), normalise_contrast(current), points, start, config)
+        errors[threshold] = np.linalg.norm(polished - truth, axis=1)[confirmed]
+    assert len(errors[3.0]) > 0.9 * len(points) and np.median(errors[3.0]) < 0.05
+    assert np.median(errors[None]) > 2 * np.median(errors[3.0])  # unwarped patches disagree: biased or dropped
+
+
 def test_the_magic_tracker_keeps_what_polishing_needs_only_when_it_polishes():
     from deepslam.frontend.tracking import MagicTracker
 
@@ -335,10 +360,13 @@ def test_a_sparse_frame_is_topped_up_with_the_second_detectors_points_that_are_n
     sparse = np.array([[10.0, 10.0], [50.0, 50.0]])
     dense = np.stack([np.arange(8, 152, 6.0), np.full(24, 80.0)], 1)
     other = np.array([[11.0, 11.0], [30.0, 30.0], [90.0, 20.0]])  # the first within 4 px of a primary point
-    frames = [sparse, dense]
+    middle = dense[:12]  # at least min_points, fewer than enough_points
+    frames = [sparse, middle, dense, middle]
     detector = ToppedUpDetector(
-        _ScriptedDetector(frames), _ScriptedDetector([other, other]), min_points=10, radius=4.0, top_k=3
+        _ScriptedDetector(frames), _ScriptedDetector([other] * 4), min_points=10, enough_points=20, top_k=14
     )
     topped = detector.detect(image)
-    np.testing.assert_array_equal(topped[:, :2], [[10, 10], [50, 50], [30, 30]])  # primary first, then new ones
-    np.testing.assert_array_equal(detector.detect(image)[:, :2], dense)  # enough points: nothing added
+    np.testing.assert_array_equal(topped[:, :2], [[10, 10], [50, 50], [30, 30], [90, 20]])  # primary first, new ones
+    assert len(detector.detect(image)) == 14  # still topped up until the primary finds enough_points again ...
+    np.testing.assert_array_equal(detector.detect(image)[:, :2], dense)  # ... as here: nothing added
+    np.testing.assert_array_equal(detector.detect(image)[:, :2], middle)  # and not before it falls under min_points

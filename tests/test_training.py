@@ -266,6 +266,28 @@ def test_soft_targets_spread_a_subpixel_point_within_its_cell():
     assert targets[0, 64].sum() == targets.shape[2] * targets.shape[3] - 1  # every other cell is dustbin
 
 
+def test_an_enlarged_teacher_labels_corners_in_the_views_pixels():
+    from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPointNet
+    from deepslam.frontend.nets import fold_batchnorm, read_weights
+    from deepslam.frontend.training.adaptation import AdaptConfig, label_views
+    from deepslam.sim.shapes import evaluation_set
+
+    net = MagicPointNet(VARIANTS["S"])
+    net.load_state_dict(read_weights(WEIGHTS / "magicpoint_S.pt")[1])
+    net = fold_batchnorm(net)
+    items = [(image, corners) for _, image, corners in evaluation_set(2, seed=3) if len(corners) >= 4][:4]
+    for scale in (1, 2):
+        config = AdaptConfig(warps=4, teacher_scale=scale)
+        labels = label_views(net, np.stack([image for image, _ in items]), np.random.default_rng(0), config)
+        near = []
+        for found, (_, corners) in zip(labels, items, strict=True):
+            found = found[np.isfinite(found[:, 0]), :2]
+            near.append(np.linalg.norm(found[:, None] - np.asarray(corners)[None, :, :2], axis=2).min(axis=1) < 2.0)
+        assert np.mean(np.concatenate(near)) > 0.6, scale  # labels sit on true corners, in the view's pixels
+    with pytest.raises(ValueError, match="teacher-scale"):
+        AdaptConfig(teacher_scale=0)
+
+
 def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_path):
     from deepslam.frontend.training import adaptation
 

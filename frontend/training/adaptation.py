@@ -60,6 +60,14 @@ class AdaptConfig(LoopConfig):
         default=0.0015, metadata={"help": "the smallest averaged corner probability that is a label", "min": 0}
     )
     label_top_k: int = 150  # at most this many labels per view
+    teacher_scale: int = field(
+        default=1,
+        metadata={
+            "help": "the labelling detector sees each view enlarged this many times (its warps averaged at that "
+            "resolution, labels brought back to the view's pixels)",
+            "min": 1,
+        },
+    )
     synthetic_share: float = field(
         default=0.375,
         metadata={"help": "share of every batch drawn from Synthetic Shapes, with its labels", "min": 0, "max": 1},
@@ -84,7 +92,7 @@ class AdaptConfig(LoopConfig):
         super().__post_init__()
         problems = [
             f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}"
-            for name in ("rounds", "views", "warps", "label_top_k", "validation_views")
+            for name in ("rounds", "views", "warps", "label_top_k", "validation_views", "teacher_scale")
             if getattr(self, name) < 1
         ]
         problems += [
@@ -124,14 +132,22 @@ def adapted_heatmap(net: torch.nn.Module, image: np.ndarray, homographies: np.nd
 
 
 def label_views(net: torch.nn.Module, images: np.ndarray, rng: np.random.Generator, config: AdaptConfig) -> np.ndarray:
-    """Labels (N, top_k, 3) [x, y, score] of views (N, H, W), NaN rows where a view has fewer."""
+    """Labels (N, top_k, 3) [x, y, score] of views (N, H, W), NaN rows where a view has fewer. With
+    ``teacher_scale`` s > 1 each view is enlarged s times (pixel centres kept: x' = s (x + 0.5) - 0.5), its
+    warps are the same homographies conjugated into the enlarged pixels, and the labels come back."""
+    s = config.teacher_scale
+    enlarge = np.array([[s, 0, (s - 1) / 2], [0, s, (s - 1) / 2], [0, 0, 1.0]])
     labels = np.full((len(images), config.label_top_k, 3), np.nan, np.float32)
     for i, image in enumerate(images):
         homographies = [np.eye(3)] + [
             sample_homography(rng, image.shape, _homography(config.label_warp)) for _ in range(config.warps - 1)
         ]
-        heat = adapted_heatmap(net, image, np.stack(homographies), config.erode)
-        points = extract_points(heat, config.label_threshold, 4, 4, config.label_top_k, "centroid")
+        h, w = image.shape
+        seen = cv2.resize(image, (w * s, h * s), interpolation=cv2.INTER_LINEAR) if s > 1 else image
+        warps = enlarge @ np.stack(homographies) @ np.linalg.inv(enlarge)
+        heat = adapted_heatmap(net, seen, warps, config.erode * s)
+        points = extract_points(heat, config.label_threshold, 4 * s, 4 * s, config.label_top_k, "centroid")
+        points[:, :2] = (points[:, :2] + 0.5) / s - 0.5
         labels[i, : len(points)] = points
     return labels
 
@@ -146,6 +162,8 @@ def labelling_key(config: AdaptConfig, detector: Path, training: list[photos.Pho
     inputs = {"views", "warps", "label_warp", "erode", "label_threshold", "label_top_k", "size", "seed"}
     options = {k: v for k, v in asdict(config).items() if k in inputs}
     key = {"detector": _file_digest(detector), "photos": [p.name for p in training], "round": round_, **options}
+    if config.teacher_scale != 1:  # labels of an unenlarged teacher keep the key they were made with
+        key["teacher_scale"] = config.teacher_scale
     return json.loads(json.dumps(key))  # as it reads back from disk (tuples become lists)
 
 
