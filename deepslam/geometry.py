@@ -1,4 +1,4 @@
-"""Conventions every package shares: pixel coordinates, point warping, path length.
+"""Conventions every package shares: pixel coordinates, point warping, homography fits, path length.
 
 Pixels are float (x, y), x right, y down, the centre of the top-left pixel at (0, 0), so an image of
 size (H, W) covers [-0.5, W - 0.5] x [-0.5, H - 0.5]. ``H_ab`` maps points of image a to image b.
@@ -6,6 +6,7 @@ size (H, W) covers [-0.5, W - 0.5] x [-0.5, H - 0.5]. ``H_ab`` maps points of im
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 
@@ -15,6 +16,21 @@ def warp_points(points: np.ndarray, H: np.ndarray) -> np.ndarray:
     points = points.reshape(-1, points.shape[-1] if points.ndim > 1 else 2)[:, :2]
     moved = points @ H[:, :2].T + H[:, 2]
     return moved[:, :2] / moved[:, 2:3]
+
+
+def fit_homography(points_a: np.ndarray, points_b: np.ndarray, threshold: float) -> np.ndarray | None:
+    """The homography (3, 3), ``H[2, 2] == 1``, that most pairs of ``points_a`` and ``points_b`` (K, 2)
+    agree on (OpenCV's USAC MAGSAC, ``threshold`` pixels), or None when the fit fails (too few or
+    degenerate pairs, e.g. collinear points)."""
+    try:
+        H, _ = cv2.findHomography(
+            np.asarray(points_a, np.float64), np.asarray(points_b, np.float64), cv2.USAC_MAGSAC, threshold
+        )
+    except cv2.error:
+        return None
+    if H is None or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+        return None
+    return H / H[2, 2]
 
 
 def in_image(points: np.ndarray, size: tuple[int, int], margin: float = 0.0) -> np.ndarray:

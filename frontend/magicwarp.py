@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
@@ -13,7 +12,7 @@ from torch import nn
 
 from deepslam.frontend.cells import CELL, points_to_cells_batch
 from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
-from deepslam.geometry import in_image, warp_points
+from deepslam.geometry import fit_homography, in_image, warp_points
 
 WEIGHTS = Path(__file__).parent / "weights"
 MIN_POINTS = 4  # a homography needs four points; fewer in either image and MagicWarp declines
@@ -177,13 +176,10 @@ def refine(
         pairs = match(a, b, H, radius)
         if len(pairs) < 8:
             break
-        try:
-            fitted, _ = cv2.findHomography(a[pairs[:, 0]], b[pairs[:, 1]], cv2.USAC_MAGSAC, threshold)
-        except cv2.error:  # degenerate sample (e.g. collinear points)
+        fitted = fit_homography(a[pairs[:, 0]], b[pairs[:, 1]], threshold)
+        if fitted is None:
             break
-        if fitted is None or abs(fitted[2, 2]) < 1e-12:
-            break
-        H = fitted / fitted[2, 2]
+        H = fitted
     return H
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from deepslam.geometry import in_image, warp_points
+from deepslam.geometry import fit_homography, in_image, warp_points
 
 LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
 
@@ -52,11 +52,7 @@ def plane_warp(reference_points: np.ndarray, current_points: np.ndarray, thresho
     (MAGSAC, ``threshold`` px), or None: no threshold, fewer than 8 pairs, or no fit."""
     if threshold is None or len(reference_points) < 8:
         return None
-    try:
-        H, _ = cv2.findHomography(reference_points, current_points.astype(np.float64), cv2.USAC_MAGSAC, threshold)
-    except cv2.error:  # degenerate pairs (e.g. collinear points)
-        return None
-    return H if H is not None and np.all(np.isfinite(H)) and abs(H[2, 2]) > 1e-12 else None
+    return fit_homography(reference_points, current_points, threshold)
 
 
 def polish(
