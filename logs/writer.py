@@ -12,9 +12,6 @@ from __future__ import annotations
 import fcntl
 import json
 import os
-import signal
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -22,6 +19,7 @@ import numpy as np
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer as Ros2Writer
 
+from deepslam.interrupts import held_signals
 from deepslam.logs.frames import LogFrame, quaternion_from_matrix
 from deepslam.logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
 
@@ -55,27 +53,6 @@ def ros_covariance(covariance: np.ndarray, T: np.ndarray) -> list[float]:
     order = [3, 4, 5, 0, 1, 2]
     rotate = np.kron(np.eye(2), T[:3, :3])
     return (rotate @ np.asarray(covariance)[np.ix_(order, order)] @ rotate.T).ravel().tolist()
-
-
-@contextmanager
-def _whole():
-    """Hold off Ctrl-C (SIGINT) and SIGTERM until the block is done, so a frame is never half written.
-
-    Only the main thread can handle signals; elsewhere the block runs as is.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received = []
-    held = (signal.SIGINT, signal.SIGTERM)
-    previous = {s: signal.signal(s, lambda number, stack: received.append((number, stack))) for s in held}
-    try:
-        yield
-    finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
-        if received and callable(previous[received[0][0]]):
-            previous[received[0][0]](*received[0])
 
 
 class LogWriteError(ValueError):
@@ -140,7 +117,7 @@ class LogWriter:
 
     def write(self, frame: LogFrame) -> None:
         """Write every topic of one frame (those whose data the frame has); Ctrl-C waits for the whole frame."""
-        with _whole():
+        with held_signals():
             self._write(frame)
 
     def _write(self, frame: LogFrame) -> None:
@@ -286,16 +263,16 @@ class LogWriter:
         ``.partial`` to its path; safe to call twice."""
         if self._file.closed:
             return
-        last = max((poses[-1][0] for poses in self._paths.values() if poses), default=None)
-        if last is not None:
-            with _whole():
+        with held_signals():  # a second Ctrl-C waits until the file is finished
+            last = max((poses[-1][0] for poses in self._paths.values() if poses), default=None)
+            if last is not None:
                 self._put_paths(last, None)
-        self._writer.finish()
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        if complete:
-            self.partial.replace(self.path)
-        self._file.close()  # closing releases the lock
+            self._writer.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            if complete:
+                self.partial.replace(self.path)
+            self._file.close()  # closing releases the lock
 
     def __enter__(self) -> "LogWriter":
         return self

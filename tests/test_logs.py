@@ -18,6 +18,7 @@ from deepslam.backend.evaluation.runs import replay, simulate
 from deepslam.backend.odometry import OdometryConfig
 from deepslam.cli import main
 from deepslam.frontend.tracking import TrackerConfig
+from deepslam.interrupts import held_signals
 from deepslam.logs.frames import pose_matrix, quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.logs.schemas import TOPICS, ros2_name
@@ -264,6 +265,35 @@ def test_replay_with_the_same_options_reproduces_the_estimate(tmp_path):
     assert original.stat().st_size == size and len(list(read_frames(original))) == 15
 
 
+class _Stopped(Exception):
+    pass
+
+
+def _stop(number, frame):
+    raise _Stopped(number)
+
+
+def test_held_signals_reach_their_handler_at_a_checkpoint_or_the_end_of_the_block():
+    previous = signal.signal(signal.SIGTERM, _stop)
+    try:
+        with held_signals() as held:
+            signal.raise_signal(signal.SIGTERM)
+            signal.raise_signal(signal.SIGTERM)  # repeats count once
+            with held_signals():  # a block inside holds for the one outside
+                signal.raise_signal(signal.SIGTERM)
+            assert held.received == [signal.SIGTERM] * 3
+            with pytest.raises(_Stopped):
+                held.checkpoint()
+            held.checkpoint()  # delivered already
+            signal.raise_signal(signal.SIGTERM)
+            reached_the_end = True
+        raise AssertionError("the signal held at the end of the block was not delivered")
+    except _Stopped:
+        assert reached_the_end and signal.getsignal(signal.SIGTERM) is _stop
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "stop, code, word", [(signal.SIGINT, 130, b"interrupted"), (signal.SIGTERM, 143, b"terminated")]
@@ -273,7 +303,7 @@ def test_ctrl_c_and_sigterm_finish_the_file_cleanly(tmp_path, stop, code, word):
     process = _run_until(out, 300_000)
     process.send_signal(stop)
     _, stderr = process.communicate(timeout=60)
-    assert process.returncode == code and word in stderr
+    assert process.returncode == code and word in stderr, stderr.decode()[-2000:]
     assert not partial_path(out).exists()
     with open(out, "rb") as f:
         summary = make_reader(f).get_summary()  # a finished file has its summary and footer

@@ -12,6 +12,7 @@ import numpy as np
 from deepslam.backend import drift
 from deepslam.backend.odometry import FrameResult, InputFrame, Odometry, OdometryConfig
 from deepslam.frontend.tracking import Tracker, TrackerConfig, Tracks, Truth, make_tracker
+from deepslam.interrupts import held_signals
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
 from deepslam.logs.sources import SourceOptions, open_source
 from deepslam.progress import progress_bar
@@ -107,45 +108,48 @@ def run_frames(
     progress: bool = True,
 ) -> RunOutput:
     """Process frames in order, handing each (frame, result, diagnostics) to ``sink`` as soon as it is
-    done. ``odometry.poses()`` has the final smoothed trajectory."""
+    done (Ctrl-C and SIGTERM take effect between frames). ``odometry.poses()`` has the final smoothed
+    trajectory."""
     truth, online, diagnostics, errors, pair_errors = [], [], [], [], []
     previous: tuple[InputFrame, Tracks] | None = None
     kept: dict[int, tuple[InputFrame, Tracks]] = {}  # the frames a later pose may be measured against
-    for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
-        result = odometry.process(frame)
-        frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
-        frame_pair_errors = np.zeros(0)
-        if result.measured_points is not None and result.reference in kept:
-            reference, reference_tracks = kept[result.reference]
-            reference_points = reference_tracks.points[result.correspondences[:, 0]]
-            frame_pair_errors = projection_errors(reference, reference_points, frame, result.measured_points)
-        position_error = (
-            float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
-            if frame.T_world_cam is not None
-            else float("nan")
-        )
-        relative = result.relative
-        diagnostics.append(
-            FrameDiagnostics(
-                len(result.tracks.ids),
-                int(relative.inliers.sum()) if relative is not None else 0,
-                result.lost,
-                relative.reason if relative is not None else "",
-                _median(frame_errors),
-                position_error,
-                result.keyframe,
-                _median(frame_pair_errors),
+    with held_signals() as signals:
+        for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
+            result = odometry.process(frame)
+            frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
+            frame_pair_errors = np.zeros(0)
+            if result.measured_points is not None and result.reference in kept:
+                reference, reference_tracks = kept[result.reference]
+                reference_points = reference_tracks.points[result.correspondences[:, 0]]
+                frame_pair_errors = projection_errors(reference, reference_points, frame, result.measured_points)
+            position_error = (
+                float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
+                if frame.T_world_cam is not None
+                else float("nan")
             )
-        )
-        errors.append(frame_errors)
-        pair_errors.append(frame_pair_errors)
-        truth.append(frame.T_world_cam)
-        online.append(result.T_world_cam)
-        if sink is not None:
-            sink(frame, result, diagnostics[-1])
-        previous = (replace(frame, image=None, truth=None), result.tracks)  # what the next frame needs
-        kept[result.index] = previous
-        kept = {i: v for i, v in kept.items() if i in (odometry.keyframe, odometry.previous_keyframe)}
+            relative = result.relative
+            diagnostics.append(
+                FrameDiagnostics(
+                    len(result.tracks.ids),
+                    int(relative.inliers.sum()) if relative is not None else 0,
+                    result.lost,
+                    relative.reason if relative is not None else "",
+                    _median(frame_errors),
+                    position_error,
+                    result.keyframe,
+                    _median(frame_pair_errors),
+                )
+            )
+            errors.append(frame_errors)
+            pair_errors.append(frame_pair_errors)
+            truth.append(frame.T_world_cam)
+            online.append(result.T_world_cam)
+            if sink is not None:
+                sink(frame, result, diagnostics[-1])
+            previous = (replace(frame, image=None, truth=None), result.tracks)  # what the next frame needs
+            kept[result.index] = previous
+            kept = {i: v for i, v in kept.items() if i in (odometry.keyframe, odometry.previous_keyframe)}
+            signals.checkpoint()
     if not online:
         raise ValueError("no frames to process")
     unknown = np.full((4, 4), np.nan)

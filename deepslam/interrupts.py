@@ -1,0 +1,56 @@
+"""Ctrl-C (SIGINT) and SIGTERM held off while work must not stop half way: a frame half processed, a
+log record half written. A held signal reaches the handler it would have met at a ``checkpoint`` or
+when the block ends; with Python's defaults that raises ``KeyboardInterrupt`` there, in plain Python
+code, never inside a call into OpenCV, gtsam or the MCAP writer."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+HELD = (signal.SIGINT, signal.SIGTERM)
+
+
+@dataclass
+class HeldSignals:
+    """The handlers in place before the block (by signal number) and the signals received since."""
+
+    previous: dict[int, object] = field(default_factory=dict)
+    received: list[int] = field(default_factory=list)
+
+    def checkpoint(self) -> None:
+        """Deliver a signal received so far (repeats count once) to the handler it would have met."""
+        if not self.received:
+            return
+        number = self.received[0]
+        self.received.clear()
+        handler = self.previous[number]
+        if callable(handler):
+            handler(number, None)
+        elif handler == signal.SIG_DFL:  # the default action (end the process), as without the block
+            self._restore()
+            signal.raise_signal(number)
+
+    def _restore(self) -> None:
+        for number, handler in self.previous.items():
+            if handler is not None:  # None: a handler installed from C, which Python cannot put back
+                signal.signal(number, handler)
+
+
+@contextmanager
+def held_signals() -> Iterator[HeldSignals]:
+    """``with held_signals() as held: ... held.checkpoint() ...``: SIGINT and SIGTERM wait for a checkpoint
+    or the end of the block. Only the main thread can handle signals; elsewhere nothing is held."""
+    held = HeldSignals()
+    if threading.current_thread() is not threading.main_thread():
+        yield held
+        return
+    held.previous = {number: signal.signal(number, lambda n, _: held.received.append(n)) for number in HELD}
+    try:
+        yield held
+    finally:
+        held._restore()
+        held.checkpoint()
