@@ -264,7 +264,7 @@ def train(
         out = step_fn(step, rng, config.batch // ranks.world)
         if not torch.isfinite(out["loss"]) or not all(torch.isfinite(p).all() for p in model.parameters()):
             raise RuntimeError(
-                f"training diverged at step {step} (loss {float(out['loss']):.4g}); {out_dir} keeps its last "
+                f"training diverged at step {step} (loss {out['loss'].item():.4g}); {out_dir} keeps its last "
                 f"good checkpoint: resume with a smaller --lr"
             )
         optimizer.zero_grad()
