@@ -27,6 +27,8 @@ ROTATION_ONLY_PX = 0.5  # E: if K R K^-1 alone maps p1 onto p2 this closely (med
 CHI2_1DOF_95 = 3.84  # chi-square 95% quantiles: one degree of freedom (point-to-line) ...
 CHI2_2DOF_95 = 5.99  # ... and two (point-to-point); ORB-SLAM's model-selection thresholds
 HOMOGRAPHY_RATIO = 0.45  # ORB-SLAM: the homography wins when R_H = S_H / (S_H + S_F) is above this
+EPIPOLAR_PX = 1.5  # a pair's Sampson distance (px) below this: the pair fits an epipolar geometry
+OFF_PLANE_MARGIN = 5  # a homography's decomposition wins outright by fitting this many more pairs off its plane
 
 
 @dataclass
@@ -95,8 +97,10 @@ def homography_pose(
     """Relative pose from a homography (estimated with MAGSAC if not given) and its decomposition.
 
     Of the up to four solutions, keep those with the reference points in front of both cameras
-    (``filterHomographyDecompByVisibleRefpoints`` on normalised points) and the plane facing camera 1,
-    then take the one whose translation agrees best with ``previous_t`` (else the first).
+    (``filterHomographyDecompByVisibleRefpoints`` on normalised points) and the plane facing camera 1.
+    Two usually remain, and the plane's own points cannot tell them apart; the pairs off the plane (a
+    room's other walls) can: take the solution whose epipolar geometry fits ``OFF_PLANE_MARGIN`` more of
+    them than any other, else the one whose translation agrees best with ``previous_t`` (else the first).
     """
     if H is None:
         H, mask = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
@@ -115,6 +119,11 @@ def homography_pose(
     candidates = [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
     magnitudes = [np.linalg.norm(translations[i]) for i in candidates]
     rotation_only = max(magnitudes) < 1e-3
+    if not rotation_only and len(candidates) > 1:
+        fits = {i: _off_plane_fits(rotations[i], translations[i], p1[~inliers], p2[~inliers], K) for i in candidates}
+        candidates.sort(key=lambda i: fits[i], reverse=True)
+        if fits[candidates[0]] - fits[candidates[1]] >= OFF_PLANE_MARGIN:
+            candidates = candidates[:1]
     if previous_t is not None and not rotation_only:
         # X_2 = R X_1 + t: camera 2's centre in frame 1 is -R^T t; compare directions
         def agreement(i):
@@ -133,6 +142,16 @@ def homography_pose(
     )
 
 
+def _off_plane_fits(R: np.ndarray, t: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> int:
+    """How many pairs p1 -> p2 (N, 2) px, off the homography's plane, fit the epipolar geometry of
+    X_2 = R X_1 + t (Sampson distance below ``EPIPOLAR_PX``)."""
+    if len(p1) == 0:
+        return 0
+    tx, ty, tz = np.ravel(t)
+    t_cross = np.array([[0.0, -tz, ty], [tz, 0.0, -tx], [-ty, tx, 0.0]])
+    return int(np.sum(_sampson_px(t_cross @ R, p1, p2, K) < EPIPOLAR_PX))
+
+
 def _sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Sampson distances (N,) in pixels of matches p1 -> p2 to the epipolar geometry of E."""
     K_inv = np.linalg.inv(K)
@@ -143,7 +162,7 @@ def _sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) ->
     return np.sqrt(num / (Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2 + 1e-12))
 
 
-def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float = 1.5) -> RelativePose:
+def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float = EPIPOLAR_PX) -> RelativePose:
     """Relative pose from an essential matrix and ``cv2.recoverPose`` (cheirality).
 
     Scenes dominated by a plane, seen over a short baseline, make E nearly degenerate: a robust fit can

@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -51,6 +52,25 @@ def test_homography_path_gives_t_over_d_and_the_plane(rng):
     result = relpose.estimate(p1, p2, K, "homography")
     assert result.t_over_d == pytest.approx(np.linalg.norm(T_TRUE[:3, 3]) / 4.0, rel=1e-3)
     np.testing.assert_allclose(result.plane_normal, [0, 0, 1], atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    "rotation, translation",
+    [([0.001, 0.001, -0.06], [-0.2, 0.027, -0.11]), ([0.017, 0.073, 0.019], [-0.033, -0.084, 0.145])],
+)
+def test_homography_pose_takes_the_decomposition_the_points_off_its_plane_agree_with(rng, rotation, translation):
+    T_c1_c2 = pose(np.array(rotation), np.array(translation))
+    wall = np.c_[rng.uniform(-2, 2, (100, 2)), np.full(100, 4.0)]
+    side = np.c_[np.full(50, -0.7), rng.uniform(-0.5, 0.5, 50), rng.uniform(1.2, 1.8, 50)]  # a side wall, x = -0.7
+    X = np.r_[wall, side]
+    p1, p2 = project(X, K)[0], project(transform(invert(T_c1_c2), X), K)[0]
+    _, rotations, translations, normals = cv2.decomposeHomographyMat(cv2.findHomography(p1[:100], p2[:100])[0], K)
+    facing = [i for i in range(len(rotations)) if normals[i][2, 0] > 0]
+    assert len(facing) == 2  # the wall's own points fit both of these equally
+    for i in facing:  # whichever of them the motion before suggests
+        previous_t = -rotations[i].T @ translations[i].ravel()
+        result = relpose.estimate(p1, p2, K, "homography", previous_t=previous_t)
+        assert _errors(result.T_c1_c2, T_c1_c2)[1] < 1
 
 
 def test_pycolmap_agrees_with_opencv(rng):
