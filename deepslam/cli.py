@@ -85,7 +85,7 @@ def _eval_detector(args: argparse.Namespace) -> None:
 
     _check_folder(args.out)
 
-    chosen = _detectors(args.detectors, **ev.SHAPES_EXTRACTION)
+    chosen = _detectors(args.detectors, args.weights, **ev.SHAPES_EXTRACTION)
     result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed, _workers(args))
     _write_result(
         args.out, "detector", result, ev.table_lines(result) + [""] + ev.category_lines(result), ev.save_plots
@@ -107,7 +107,7 @@ def _eval_realimages(args: argparse.Namespace) -> None:
 
     _check_folder(args.out)
 
-    detectors = _detectors(args.detectors)
+    detectors = _detectors(args.detectors, args.weights)
     result = ev.static_repeatability(detectors, args.frames, args.seed, jitter_px=args.jitter, workers=_workers(args))
     name = f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages"
     _write_result(args.out, name, result, ev.static_lines(result), lambda r, out: ev.save_static_plots(r, out, name))
@@ -119,14 +119,16 @@ def _workers(args: argparse.Namespace):
     return Workers(args.jobs, args.ray)
 
 
-def _detectors(names: list[str] | None, **extraction) -> dict:
+def _detectors(names: list[str] | None, weights: list[Path] | None = None, **extraction) -> dict:
+    """The detectors ``names`` picks (all when None), and MagicPoint from each of ``weights``."""
     from deepslam.frontend.evaluation.detector import available_detectors
 
-    detectors = available_detectors(**extraction)
+    detectors = available_detectors(**extraction, weights=tuple(weights or ()))
     unknown = set(names or []) - set(detectors)
     if unknown:
         raise _UsageError(f"unknown or unavailable detectors {sorted(unknown)}; available: {', '.join(detectors)}")
-    return {name: d for name, d in detectors.items() if not names or name in names}
+    picked = {str(path) for path in weights or ()} | set(names or detectors)
+    return {name: d for name, d in detectors.items() if name in picked}
 
 
 def _eval_pipeline(args: argparse.Namespace) -> None:
@@ -387,6 +389,15 @@ def _eval_commands(commands) -> None:
         "Corners; the files are then named realimages_jitterPX)",
     )
     real.add_argument("--detectors", nargs="+", metavar="NAME", help=f"evaluate only these ({detector_names})")
+    for parser in (detector, real):
+        parser.add_argument(
+            "--weights",
+            type=Path,
+            nargs="+",
+            metavar="PATH",
+            help="also evaluate MagicPoint from these weights files or training checkpoints, each named by its path "
+            "(one pass, sub-pixel centroids, as S-HA runs)",
+        )
     for parser in (detector, warp, real):
         parser.add_argument("--seed", type=number_type(int, 0), default=0, help="seed of the evaluation data")
     _command(

@@ -1,4 +1,5 @@
 import json
+import shutil
 
 import pytest
 
@@ -155,6 +156,23 @@ def test_parallel_evaluations_give_the_serial_bytes(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main([*sweep, "--jobs", "0"])
     assert exit_info.value.code == 2 and "argument --jobs: must lie in [1, inf]" in capsys.readouterr().err
+
+
+def test_realimages_evaluates_a_checkpoint_beside_the_shipped_detectors(tmp_path, capsys):
+    from deepslam.frontend.magicpoint import WEIGHTS
+
+    candidate = tmp_path / "candidate.pt"
+    shutil.copy(WEIGHTS / "magicpoint_S-HA.pt", candidate)
+    argv = ["eval", "realimages", "--frames", "2", "--detectors", "MagicPointS-HA", "-q", "--out", str(tmp_path)]
+    assert main([*argv, "--weights", str(candidate)]) == 0
+    result = json.loads((tmp_path / "realimages.json").read_text())
+    assert set(result) == {"MagicPointS-HA", str(candidate)}
+    assert result[str(candidate)] == result["MagicPointS-HA"]  # the same weights, run the same way
+    (tmp_path / "broken.pt").write_bytes(b"not weights")
+    capsys.readouterr()
+    assert main([*argv, "--weights", str(tmp_path / "broken.pt")]) == 1
+    error = capsys.readouterr().err
+    assert "broken.pt is not a deepslam weights file" in error and len(error.strip().splitlines()) == 1
 
 
 def test_ray_without_ray_says_how_to_get_it(tmp_path, capsys):

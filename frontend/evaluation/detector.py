@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Protocol
 
 import cv2
@@ -59,10 +60,14 @@ SHAPES_EXTRACTION = {"threshold": 0.001, "border": 0}
 ground truth has corners up to the image edge (2.6% of them lie within 4 px of it)."""
 
 
-def available_detectors(threshold: float = 0.001, border: int = 4) -> dict[str, Detector]:
+def available_detectors(
+    threshold: float = 0.001, border: int = 4, weights: tuple[Path, ...] = ()
+) -> dict[str, Detector]:
     """FAST, Harris, Shi, every MagicPoint variant whose weights are shipped, MagicPoint S with four
     grid shifts (``MagicPointS-x4``) and S on the image enlarged 2x with two grid shifts, as the magic
-    tracker runs it (``MagicPointS-2x``); all drop detections within ``border`` pixels of the edge."""
+    tracker runs it (``MagicPointS-2x``), and MagicPoint from each of ``weights`` (weights files or
+    training checkpoints, named by their path; one pass, sub-pixel centroids, as S-HA runs); all drop
+    detections within ``border`` pixels of the edge."""
     from deepslam.frontend.classical import ClassicalDetector
     from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
 
@@ -76,6 +81,8 @@ def available_detectors(threshold: float = 0.001, border: int = 4) -> dict[str, 
         "S", threshold=threshold, border=border, grid_shifts=2, upsample=2
     )
     detectors.update({kind: ClassicalDetector(kind.lower(), border=border) for kind in ("FAST", "Harris", "Shi")})
+    for path in weights:
+        detectors[str(path)] = MagicPoint.pretrained("S-HA", path=path, threshold=threshold, border=border)
     return detectors
 
 
