@@ -286,14 +286,16 @@ def static_repeatability(
 def static_lines(result: dict) -> list[str]:
     """Repeatability@N per detector and condition, with the paper's 30 Static Corners R beside it."""
     keys = list(next(iter(result.values())))
-    lines = [f"{'repeatability@N (loc. px)':<26}" + "".join(f"{k:>24}" for k in keys) + "   paper R (same columns)"]
+    width = max(26, *(len(name) + 1 for name in result))  # checkpoints are named by their path
+    header = f"{'repeatability@N (loc. px)':<{width}}" + "".join(f"{k:>24}" for k in keys)
+    lines = [header + "   paper R (same columns)"]
     for name, figures in result.items():
         paper = " / ".join(f"{v:.3f}" for v in PAPER_STATIC_R.get(name, ()))
         cells = [
             f"{figures[k]['repeatability']:>9.3f} @{figures[k]['n']:>4.0f} ({figures[k]['localization_error']:.2f})"
             for k in keys
         ]
-        lines.append(f"{name:<26}" + "".join(f"{c:>24}" for c in cells) + f"   {paper}")
+        lines.append(f"{name:<{width}}" + "".join(f"{c:>24}" for c in cells) + f"   {paper}")
     return lines
 
 
