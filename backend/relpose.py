@@ -92,9 +92,15 @@ def _score_fundamental(F: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: flo
 
 
 def homography_pose(
-    p1: np.ndarray, p2: np.ndarray, K: np.ndarray, H: np.ndarray | None = None, previous_t: np.ndarray | None = None
+    p1: np.ndarray,
+    p2: np.ndarray,
+    K: np.ndarray,
+    H: np.ndarray | None = None,
+    previous_t: np.ndarray | None = None,
+    inliers: np.ndarray | None = None,
 ) -> RelativePose:
-    """Relative pose from a homography (estimated with MAGSAC if not given) and its decomposition.
+    """Relative pose from a homography (estimated with MAGSAC if not given; a given one with its
+    ``inliers`` (N,) among the pairs, all of them when None) and its decomposition.
 
     Of the up to four solutions, keep those with the reference points in front of both cameras
     (``filterHomographyDecompByVisibleRefpoints`` on normalised points) and the plane facing camera 1.
@@ -107,7 +113,7 @@ def homography_pose(
         if H is None:
             return _failed(len(p1), "homography estimation failed")
         inliers = mask.ravel().astype(bool)
-    else:
+    elif inliers is None:
         inliers = np.ones(len(p1), bool)
     count, rotations, translations, normals = cv2.decomposeHomographyMat(H, K)
     n1, n2 = _normalised(p1[inliers], K), _normalised(p2[inliers], K)
@@ -309,11 +315,7 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma) -> RelativePose:
     model, H, inliers_h = select_model(p1, p2, sigma)
     if model == "essential":
         return essential_pose(p1, p2, K)
-    pose = homography_pose(p1[inliers_h], p2[inliers_h], K, H, previous_t)
-    full = np.zeros(len(p1), bool)
-    full[np.nonzero(inliers_h)[0][pose.inliers]] = True
-    pose.inliers = full
-    return pose
+    return homography_pose(p1, p2, K, H, previous_t, inliers_h)
 
 
 def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:
