@@ -126,7 +126,8 @@ def homography_pose(
     magnitudes = [np.linalg.norm(translations[i]) for i in candidates]
     rotation_only = max(magnitudes) < 1e-3
     if not rotation_only and len(candidates) > 1:
-        fits = {i: _off_plane_fits(rotations[i], translations[i], p1[~inliers], p2[~inliers], K) for i in candidates}
+        off1, off2 = p1[~inliers], p2[~inliers]
+        fits = {i: _off_plane_fits(rotations[i], translations[i], off1, off2, K) for i in candidates}
         candidates.sort(key=lambda i: fits[i], reverse=True)
         if fits[candidates[0]] - fits[candidates[1]] >= OFF_PLANE_MARGIN:
             candidates = candidates[:1]

@@ -100,6 +100,38 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(values)) if len(values) else float("nan")
 
 
+def _pair_errors(frame: InputFrame, result: FrameResult, kept: dict[int, tuple[InputFrame, Tracks]]) -> np.ndarray:
+    """Pixel errors (M,) of the pairs the frame's pose was measured from (``projection_errors``), if its
+    reference keyframe is among the ``kept`` frames."""
+    if result.measured_points is None or result.reference not in kept:
+        return np.zeros(0)
+    reference, reference_tracks = kept[result.reference]
+    reference_points = reference_tracks.points[result.correspondences[:, 0]]
+    return projection_errors(reference, reference_points, frame, result.measured_points)
+
+
+def _diagnostics(
+    frame: InputFrame, result: FrameResult, frame_errors: np.ndarray, frame_pair_errors: np.ndarray
+) -> FrameDiagnostics:
+    """What the log and the drift report keep of one processed frame, given its track and pair errors (px)."""
+    relative = result.relative
+    position_error = (
+        float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
+        if frame.T_world_cam is not None
+        else float("nan")
+    )
+    return FrameDiagnostics(
+        len(result.tracks.ids),
+        int(relative.inliers.sum()) if relative is not None else 0,
+        result.lost,
+        relative.reason if relative is not None else "",
+        _median(frame_errors),
+        position_error,
+        result.keyframe,
+        _median(frame_pair_errors),
+    )
+
+
 def run_frames(
     frames: Iterable[InputFrame],
     odometry: Odometry,
@@ -117,29 +149,8 @@ def run_frames(
         for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
             result = odometry.process(frame)
             frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
-            frame_pair_errors = np.zeros(0)
-            if result.measured_points is not None and result.reference in kept:
-                reference, reference_tracks = kept[result.reference]
-                reference_points = reference_tracks.points[result.correspondences[:, 0]]
-                frame_pair_errors = projection_errors(reference, reference_points, frame, result.measured_points)
-            position_error = (
-                float(np.linalg.norm(result.T_world_cam[:3, 3] - frame.T_world_cam[:3, 3]))
-                if frame.T_world_cam is not None
-                else float("nan")
-            )
-            relative = result.relative
-            diagnostics.append(
-                FrameDiagnostics(
-                    len(result.tracks.ids),
-                    int(relative.inliers.sum()) if relative is not None else 0,
-                    result.lost,
-                    relative.reason if relative is not None else "",
-                    _median(frame_errors),
-                    position_error,
-                    result.keyframe,
-                    _median(frame_pair_errors),
-                )
-            )
+            frame_pair_errors = _pair_errors(frame, result, kept)
+            diagnostics.append(_diagnostics(frame, result, frame_errors, frame_pair_errors))
             errors.append(frame_errors)
             pair_errors.append(frame_pair_errors)
             truth.append(frame.T_world_cam)
