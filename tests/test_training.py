@@ -310,6 +310,22 @@ def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_p
         adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))
 
 
+def test_homographic_adaptation_trains_a_wider_detector_from_its_teacher(tmp_path):
+    from deepslam.frontend.training import adaptation
+
+    config = adaptation.AdaptConfig(
+        photos=(str(_photo_folder(tmp_path / "photos")),), views=4, warps=3, iterations=2, batch=4, validate_every=2,
+        rounds=1, validation_views=1, widths=(8, 8, 16, 24), head=40,
+    )  # fmt: skip
+    adaptation.run(tmp_path / "wide", config)
+    detector = MagicPoint.pretrained("S-HA", path=tmp_path / "wide" / "round1" / "best.pt")
+    assert detector.net.config.widths == (8, 8, 16, 24) and detector.net.config.head == 40
+    with pytest.raises(ValueError, match="--widths"):
+        replace(config, widths=(8, 0, 16, 16))
+    with pytest.raises(ValueError, match="another shape"):  # narrower than its teacher, S
+        adaptation.run(tmp_path / "narrow", replace(config, widths=(8, 8, 8, 8)))
+
+
 def _torchrun(out: Path, iterations: int, batch: int = 4):
     import subprocess
     import sys

@@ -26,11 +26,12 @@ import numpy as np
 import torch
 
 from deepslam.frontend.cells import CELL
-from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointNet, cells_to_heatmap
+from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointConfig, MagicPointNet, cells_to_heatmap
 from deepslam.frontend.nets import fold_batchnorm, load_checkpoint, read_weights
 from deepslam.frontend.points import extract_points
 from deepslam.frontend.training.loop import LoopConfig, train
 from deepslam.frontend.training.magicpoint import cell_labels
+from deepslam.frontend.training.surgery import load_weights
 from deepslam.geometry import in_image, warp_points
 from deepslam.progress import progress_bar
 from deepslam.sim import noise, photos
@@ -84,6 +85,18 @@ class AdaptConfig(LoopConfig):
             "metavar": "DIR",
         },
     )
+    widths: tuple[int, int, int, int] = field(
+        default=VARIANTS["S-HA"].widths,
+        metadata={
+            "help": "the trained detector's encoder widths (default S's); wider than the labelling detector's, it "
+            "starts from that detector's function (its weights embedded)",
+            "min": 1,
+        },
+    )
+    head: int = field(
+        default=VARIANTS["S-HA"].head,
+        metadata={"help": "width of the trained detector's 3x3 layer before its 65-channel head", "min": 1},
+    )
     size: tuple[int, int] = (120, 160)
     validation_views: int = 2  # views per validation photograph, each seen as a jittered sequence
     init_weights: str = field(default="", repr=False)  # set by ``run``: the detector round 1 labels with
@@ -92,9 +105,11 @@ class AdaptConfig(LoopConfig):
         super().__post_init__()
         problems = [
             f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}"
-            for name in ("rounds", "views", "warps", "label_top_k", "validation_views", "teacher_scale")
+            for name in ("rounds", "views", "warps", "label_top_k", "validation_views", "teacher_scale", "head")
             if getattr(self, name) < 1
         ]
+        if min(self.widths) < 1:
+            problems.append(f"--widths must be at least 1, got {self.widths}")
         problems += [
             f"--{name.replace('_', '-')} must lie in [0, 1], got {getattr(self, name)}"
             for name in ("synthetic_share", "noisy_share")
@@ -307,8 +322,9 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
     figures: dict = {}
     for round_ in range(1, config.rounds + 1):
         folder = out_dir / f"round{round_}"
-        net = MagicPointNet(VARIANTS["S-HA"])
-        net.load_state_dict(read_weights(detector_weights)[1])
+        teacher_config, teacher_weights = read_weights(detector_weights)
+        teacher = MagicPointNet(MagicPointConfig(**teacher_config))
+        teacher.load_state_dict(teacher_weights)
         key = labelling_key(config, detector_weights, parts["training"], round_)
         trained_on = folder / "labels" / "key.json"
         if (folder / "last.pt").exists() and trained_on.exists() and json.loads(trained_on.read_text()) != key:
@@ -319,8 +335,9 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
             log.info(f"{folder} has finished its {config.iterations} steps")
             detector_weights = folder / "best.pt"
             continue
-        views, labels = labelled_views(folder / "labels", fold_batchnorm(net), source, key, config)
+        views, labels = labelled_views(folder / "labels", fold_batchnorm(teacher), source, key, config)
         round_config = _round_config(config, round_, detector_weights)
+        net = MagicPointNet(MagicPointConfig(config.widths, config.head))
         figures = _train_round(net, folder, views, labels, round_config, sequences, (shapes_clean, shapes_noisy))
         detector_weights = folder / "best.pt"
     return figures
@@ -366,8 +383,6 @@ def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
         figures["score"] = (figures["rep_clean"] + figures["rep_noisy"] + clean + noisy) / 4
         return figures
 
-    if not (folder / "last.pt").exists():
-        # start the round from the detector that labelled it
-        state = load_checkpoint(config.init_weights)
-        net.load_state_dict(state.get("ema", state["model"]))
+    if not (folder / "last.pt").exists():  # start the round from the detector that labelled it
+        load_weights(net, Path(config.init_weights))
     return train(net, config, folder, step_fn, validate, "score")
