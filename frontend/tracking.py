@@ -3,8 +3,9 @@
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
   snapping and a robust homography fit, checked against the no-motion and constant-motion guesses),
   nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top); a track the detector
-  misses is carried on by that homography. The pairs a pose is measured from (a frame and its keyframe)
-  are confirmed and polished by ``frontend.polish`` (``confirm``).
+  misses is carried on by that homography and aligned to the frame it was last detected in. The pairs a
+  pose is measured from (a frame and its keyframe) are confirmed and polished by ``frontend.polish``
+  (``confirm``).
 - ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked), replenished when tracks run low: what a practitioner would build.
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
@@ -98,10 +99,12 @@ class MagicTracker(Tracker):
     """MagicPoint + MagicWarp tracking. MagicWarp estimates H between consecutive point images;
     every live track's position is carried by it and snapped to the nearest new detection within
     ``max_dist`` pixels. A track missed by the detector lives on, carried by H, for ``max_age``
-    frames; with ``carry`` it is also reported there (score 0), so that a keyframe keeps its tracks
-    through the detector's misses. A frame reports at most ``budget`` points: the detections that continue
-    a track, then carried tracks (the most recently detected first), then new detections (all of which are
-    followed, reported or not), so that new points do not crowd out the tracks a keyframe shares.
+    frames; with ``carry`` and ``polish`` it is also reported (score 0) where Lucas-Kanade aligns it with the
+    frame it was last detected in (``_align_carried``; without ``polish``, where H carries it), so that a
+    keyframe keeps its tracks through the detector's misses. A frame reports at most ``budget`` points: the
+    detections that continue a track, then carried tracks (the most recently detected first), then new
+    detections (all of which are followed, reported or not), so that new points do not crowd out the tracks
+    a keyframe shares.
     ``iterations`` applies MagicWarp iteratively; ``refine`` polishes its H by snapping and a robust
     homography fit (``frontend.magicwarp.refine``) and lets the previous H and the identity, refined the
     same way, compete with it (``_homography``); ``ransac`` adds a fundamental-matrix check; ``polish`` (a
@@ -135,6 +138,8 @@ class MagicTracker(Tracker):
         self.live = np.zeros((0, 2))  # positions of live tracks (detected or carried)
         self.live_ids = np.zeros(0, np.int64)
         self.live_age = np.zeros(0, np.int64)  # frames since last detected
+        self.live_anchor = np.zeros((0, 2))  # where each live track was last detected
+        self.appearances: list[np.ndarray] = []  # the last max_age + 1 frames as polishing sees them, oldest first
 
     def _homography(self, points: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
         """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: MagicWarp's
@@ -177,22 +182,43 @@ class MagicTracker(Tracker):
         missed = np.ones(len(self.live), bool)
         missed[pairs[:, 0]] = False
         keep = missed & (self.live_age < self.max_age)
-        h, w = image.shape
+        appearance = normalise_contrast(image, self.polish.sigma) if self.polish else None
         continued = int((~fresh).sum())
-        reported = keep & self.carry & in_image(self.live, (h, w), margin=0.5)
+        reported = keep & self.carry & in_image(self.live, image.shape, margin=0.5)
+        if appearance is not None:
+            reported &= self._align_carried(reported, appearance)
         reported &= np.cumsum(reported) <= self.budget - continued  # live tracks are ordered by last detection
         shown = ~fresh | (np.cumsum(fresh) <= self.budget - continued - int(reported.sum()))
         self.previous = Tracks(
             np.vstack([points[shown], self.live[reported]]),
             np.concatenate([ids[shown], self.live_ids[reported]]),
             np.concatenate([detections[shown, 2], np.zeros(reported.sum())]).astype(np.float64),
-            normalise_contrast(image, self.polish.sigma) if self.polish else None,
+            appearance,
         )
         self.detections = points
         self.live = np.vstack([points, self.live[keep]])
         self.live_ids = np.concatenate([ids, self.live_ids[keep]])
         self.live_age = np.concatenate([np.zeros(len(points), np.int64), self.live_age[keep] + 1])
+        self.live_anchor = np.vstack([points, self.live_anchor[keep]])
+        if appearance is not None:
+            self.appearances = (self.appearances + [appearance])[-(self.max_age + 1) :]
         return self.previous
+
+    def _align_carried(self, carried: np.ndarray, appearance: np.ndarray) -> np.ndarray:
+        """Move the live tracks ``carried`` (mask (N,)) from where the homography carried them to where
+        Lucas-Kanade aligns the frame they were last detected in, around that detection, with this frame's
+        ``appearance`` (``frontend.polish.polish``: per frame of detection, that frame warped by the pairs'
+        homography first). Returns the mask (N,) of the tracks it confirmed (the others stay live where the
+        homography carried them, unreported); anchoring to the detection keeps errors from adding up from
+        frame to frame."""
+        confirmed = carried.copy()
+        for age in np.unique(self.live_age[carried]):  # the detection was age + 1 frames ago
+            index = np.nonzero(carried & (self.live_age == age))[0]
+            detected_in = self.appearances[-1 - int(age)]
+            moved, ok = polish(detected_in, appearance, self.live_anchor[index], self.live[index], self.polish)
+            self.live[index[ok]] = moved[ok]
+            confirmed[index[~ok]] = False
+        return confirmed
 
     def confirm(self, reference: Tracks, current: Tracks, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """With ``polish``: only the pairs Lucas-Kanade confirms between the two frames' contrast-normalised
@@ -316,8 +342,8 @@ class TrackerConfig:
     carry: bool | None = field(
         default=None,
         metadata={
-            "help": "report a track the detector misses where MagicWarp's homography carries it, for up to 20 "
-            "frames (default: only with --method homography, as carried points follow the dominant plane)"
+            "help": "report a track the detector misses for up to 20 frames, carried by MagicWarp's homography "
+            "and aligned to the frame it was last detected in (default: only with --method homography)"
         },
     )
     ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})

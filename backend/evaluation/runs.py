@@ -30,15 +30,14 @@ def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
         yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels), f.depth)
 
 
-def projection_errors(
-    before: InputFrame, points_before: np.ndarray, after: InputFrame, points_after: np.ndarray
-) -> np.ndarray:
-    """Pixel errors (M,) of point pairs: each of ``points_before`` (N, 2) back-projected with the true depth
-    of frame ``before``, moved by the true poses and projected into ``after``, against its partner in
-    ``points_after`` (N, 2); points where the depth buffer saw nothing are left out. Empty without depth or
-    poses (real data)."""
+def true_positions(before: InputFrame, points_before: np.ndarray, after: InputFrame) -> np.ndarray:
+    """Where ``points_before`` (N, 2) of frame ``before`` truly are in frame ``after``: each back-projected
+    with the true depth, moved by the true poses and projected (N, 2); NaN where the depth buffer saw nothing.
+    All NaN without depth or poses (real data)."""
+    points_before = np.asarray(points_before, np.float64).reshape(-1, 2)
+    projected = np.full((len(points_before), 2), np.nan)
     if before.depth is None or before.T_world_cam is None or after.T_world_cam is None or len(points_before) == 0:
-        return np.zeros(0)
+        return projected
     inverse_depth = np.where(np.isfinite(before.depth), 1.0 / before.depth, 0.0).astype(np.float32)
     sampled = cv2.remap(
         inverse_depth, *np.asarray(points_before, np.float32).reshape(-1, 1, 2).transpose(2, 0, 1), cv2.INTER_LINEAR
@@ -49,9 +48,20 @@ def projection_errors(
     world = rays * z[seen, None] @ before.T_world_cam[:3, :3].T + before.T_world_cam[:3, 3]
     T_cam_world = np.linalg.inv(after.T_world_cam)
     camera = world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-    projected = camera @ after.K.T
-    projected = projected[:, :2] / projected[:, 2:3]
-    return np.linalg.norm(projected - points_after[seen], axis=1)
+    pixels = camera @ after.K.T
+    projected[seen] = pixels[:, :2] / pixels[:, 2:3]
+    return projected
+
+
+def projection_errors(
+    before: InputFrame, points_before: np.ndarray, after: InputFrame, points_after: np.ndarray
+) -> np.ndarray:
+    """Pixel errors (M,) of point pairs: each of ``points_before`` (N, 2) where it truly is in ``after``
+    (``true_positions``) against its partner in ``points_after`` (N, 2); points where the depth buffer saw
+    nothing are left out. Empty without depth or poses (real data)."""
+    projected = true_positions(before, points_before, after)
+    seen = np.isfinite(projected[:, 0])
+    return np.linalg.norm(projected[seen] - np.asarray(points_after, np.float64).reshape(-1, 2)[seen], axis=1)
 
 
 def track_errors(previous: InputFrame, tracks_before: Tracks, frame: InputFrame, tracks: Tracks) -> np.ndarray:
