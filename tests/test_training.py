@@ -322,8 +322,12 @@ def test_homographic_adaptation_trains_a_wider_detector_from_its_teacher(tmp_pat
     assert detector.net.config.widths == (8, 8, 16, 24) and detector.net.config.head == 40
     with pytest.raises(ValueError, match="--widths"):
         replace(config, widths=(8, 0, 16, 16))
-    with pytest.raises(ValueError, match="another shape"):  # narrower than its teacher, S
+    adaptation.run(tmp_path / "wide_again", config)  # the same training again: the new units follow the seed
+    again = MagicPoint.pretrained("S-HA", path=tmp_path / "wide_again" / "round1" / "best.pt").net.state_dict()
+    assert all(torch.equal(value, again[name]) for name, value in detector.net.state_dict().items())
+    with pytest.raises(ValueError, match="another shape"):  # narrower than its teacher, S: before any labelling
         adaptation.run(tmp_path / "narrow", replace(config, widths=(8, 8, 8, 8)))
+    assert not (tmp_path / "narrow" / "round1" / "labels").exists()
 
 
 def _torchrun(out: Path, iterations: int, batch: int = 4):

@@ -99,7 +99,6 @@ class AdaptConfig(LoopConfig):
     )
     size: tuple[int, int] = (120, 160)
     validation_views: int = 2  # views per validation photograph, each seen as a jittered sequence
-    init_weights: str = field(default="", repr=False)  # set by ``run``: the detector round 1 labels with
 
     def __post_init__(self):
         super().__post_init__()
@@ -335,9 +334,12 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
             log.info(f"{folder} has finished its {config.iterations} steps")
             detector_weights = folder / "best.pt"
             continue
+        round_config = _round_config(config, round_)
+        with torch.random.fork_rng():  # a wider network's new units come from the seed
+            torch.manual_seed(round_config.seed)
+            net = MagicPointNet(MagicPointConfig(config.widths, config.head))
+        load_weights(net, detector_weights)  # starts from the labelling detector; a misfit fails before labelling
         views, labels = labelled_views(folder / "labels", fold_batchnorm(teacher), source, key, config)
-        round_config = _round_config(config, round_, detector_weights)
-        net = MagicPointNet(MagicPointConfig(config.widths, config.head))
         figures = _train_round(net, folder, views, labels, round_config, sequences, (shapes_clean, shapes_noisy))
         detector_weights = folder / "best.pt"
     return figures
@@ -348,9 +350,10 @@ def _finished(folder: Path, iterations: int) -> bool:
     return last.exists() and load_checkpoint(last, needs=("step",))["step"] >= iterations
 
 
-def _round_config(config: AdaptConfig, round_: int, weights: Path) -> AdaptConfig:
-    """A round's training options: its own data stream, starting from the weights that labelled it."""
-    return replace(config, init="", init_weights=str(weights), seed=config.seed + 1000 * (round_ - 1))
+def _round_config(config: AdaptConfig, round_: int) -> AdaptConfig:
+    """A round's training options: its own data stream (it starts from the weights that labelled it, loaded
+    by ``run``, not from ``init``)."""
+    return replace(config, init="", seed=config.seed + 1000 * (round_ - 1))
 
 
 def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
@@ -383,6 +386,4 @@ def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
         figures["score"] = (figures["rep_clean"] + figures["rep_noisy"] + clean + noisy) / 4
         return figures
 
-    if not (folder / "last.pt").exists():  # start the round from the detector that labelled it
-        load_weights(net, Path(config.init_weights))
     return train(net, config, folder, step_fn, validate, "score")
