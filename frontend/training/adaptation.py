@@ -27,7 +27,7 @@ import torch
 
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointConfig, MagicPointNet, cells_to_heatmap
-from deepslam.frontend.nets import fold_batchnorm, load_checkpoint, read_weights
+from deepslam.frontend.nets import load_checkpoint
 from deepslam.frontend.points import extract_points
 from deepslam.frontend.training.loop import LoopConfig, train
 from deepslam.frontend.training.magicpoint import cell_labels
@@ -321,9 +321,6 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
     figures: dict = {}
     for round_ in range(1, config.rounds + 1):
         folder = out_dir / f"round{round_}"
-        teacher_config, teacher_weights = read_weights(detector_weights)
-        teacher = MagicPointNet(MagicPointConfig(**teacher_config))
-        teacher.load_state_dict(teacher_weights)
         key = labelling_key(config, detector_weights, parts["training"], round_)
         trained_on = folder / "labels" / "key.json"
         if (folder / "last.pt").exists() and trained_on.exists() and json.loads(trained_on.read_text()) != key:
@@ -339,7 +336,8 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
             torch.manual_seed(round_config.seed)
             net = MagicPointNet(MagicPointConfig(config.widths, config.head))
         load_weights(net, detector_weights)  # starts from the labelling detector; a misfit fails before labelling
-        views, labels = labelled_views(folder / "labels", fold_batchnorm(teacher), source, key, config)
+        teacher = MagicPoint.pretrained("S-HA", path=detector_weights).net  # folded, in its own shape
+        views, labels = labelled_views(folder / "labels", teacher, source, key, config)
         figures = _train_round(net, folder, views, labels, round_config, sequences, (shapes_clean, shapes_noisy))
         detector_weights = folder / "best.pt"
     return figures
