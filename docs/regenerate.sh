@@ -7,6 +7,8 @@ JOBS=${JOBS:-2}
 TIME="/usr/bin/time -f %e -o"  # wall seconds of a command, into a file
 deepslam eval realimages --out docs/eval --jobs "$JOBS"
 deepslam eval realimages --out docs/eval --jobs "$JOBS" --jitter 2
+python examples/shift_repeatability.py --detectors MagicPointS MagicPointS-HA MagicPointS-2x Harris \
+  > docs/eval/shift_repeatability.txt
 deepslam eval detector --out docs/eval --jobs "$JOBS" \
   --detectors MagicPointS MagicPointS-HA MagicPointS-2x FAST Harris Shi
 deepslam eval detector --out docs/eval/detector_L --jobs "$JOBS" --per-category 300 --sweep-per-category 10 \

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -11,7 +12,7 @@ import torch
 from torch import nn
 
 from deepslam.frontend.cells import CELL
-from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
+from deepslam.frontend.nets import fold_batchnorm, pooling, read_weights, vgg_block
 from deepslam.frontend.points import SUBPIXEL, Subpixel, check_image, extract_points
 
 WEIGHTS = Path(__file__).parent / "weights"
@@ -20,16 +21,18 @@ WEIGHTS = Path(__file__).parent / "weights"
 @dataclass(frozen=True)
 class MagicPointConfig:
     """Encoder widths (two 3x3 VGG blocks per stage; a 2x2 max-pool after each of the first three
-    stages) and the width of the 3x3 layer before the 1x1 head to 65 channels."""
+    stages), the width of the 3x3 layer before the 1x1 head to 65 channels, and the max-pool: "max" (the
+    paper's) or "blur" (anti-aliased, ``nets.BlurMaxPool``: detections follow sub-cell motion more closely)."""
 
     widths: tuple[int, int, int, int] = (8, 8, 16, 16)
     head: int = 32
+    pool: Literal["max", "blur"] = "max"
 
 
 VARIANTS = {
     "S": MagicPointConfig((8, 8, 16, 16), 32),
     "L": MagicPointConfig((64, 64, 128, 128), 256),
-    "S-HA": MagicPointConfig((8, 8, 16, 16), 32),  # S trained on real photographs by homographic adaptation
+    "S-HA": MagicPointConfig((8, 8, 16, 16), 32, "blur"),  # S on real photographs: homographic adaptation
 }
 INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "centroid"}}  # options a variant was trained for
 
@@ -45,7 +48,7 @@ class MagicPointNet(nn.Module):
             layers += [vgg_block(channels, width), vgg_block(width, width)]
             channels = width
             if stage < 3:
-                layers.append(nn.MaxPool2d(2))
+                layers.append(pooling(config.pool))
         self.encoder = nn.Sequential(*layers)
         self.head = nn.Sequential(vgg_block(channels, config.head), nn.Conv2d(config.head, CELL * CELL + 1, 1))
 

@@ -21,6 +21,35 @@ def vgg_block(in_channels: int, out_channels: int, kernel_size: int = 3) -> nn.S
     )
 
 
+class BlurMaxPool(nn.Module):
+    """Anti-aliased 2x2 max-pool (Zhang, *Making Convolutional Networks Shift-Invariant Again*, 2019): the
+    max over every 2x2 window (stride 1, the last row and column repeated), then a 3x3 binomial blur
+    ([1, 2, 1] x [1, 2, 1] / 16, reflected at the top and left) sampled at every second pixel.
+    (B, C, H, W) -> (B, C, H/2, W/2) for even H and W, as ``nn.MaxPool2d(2)``; no weights. Written with
+    slices rather than a depthwise convolution, which ran 3-8x slower on one CPU thread."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        channels_last = x.is_contiguous(memory_format=torch.channels_last)  # as a folded network runs
+        for dim in (2, 3):
+            x = torch.cat([x, x.narrow(dim, -1, 1)], dim)
+            x = torch.maximum(x.narrow(dim, 0, x.shape[dim] - 1), x.narrow(dim, 1, x.shape[dim] - 1))
+        for dim in (2, 3):
+            even, odd = _every_second(x, dim, 0), _every_second(x, dim, 1)
+            before = torch.cat([odd.narrow(dim, 0, 1), odd.narrow(dim, 0, odd.shape[dim] - 1)], dim)
+            x = before.add_(odd).add_(even, alpha=2.0)  # x[2i - 1] + 2 x[2i] + x[2i + 1]
+        x = x.mul_(1.0 / 16.0)
+        return x.contiguous(memory_format=torch.channels_last) if channels_last else x
+
+
+def _every_second(x: torch.Tensor, dim: int, start: int) -> torch.Tensor:
+    return x[:, :, start::2] if dim == 2 else x[:, :, :, start::2]
+
+
+def pooling(kind: str) -> nn.Module:
+    """The 2x2 downsampling of a network config: "max" (the paper's) or "blur" (``BlurMaxPool``)."""
+    return BlurMaxPool() if kind == "blur" else nn.MaxPool2d(2)
+
+
 def fold_batchnorm(model: nn.Module) -> nn.Module:
     """A copy of ``model`` in eval mode with every Conv2d+BatchNorm2d pair merged into the Conv2d,
     its weights stored channels-last (NHWC), the layout oneDNN's CPU convolutions run fastest (measured

@@ -6,9 +6,9 @@ import torch
 from deepslam.frontend import MagicPoint, MagicWarp, match
 from deepslam.frontend.cells import points_to_cells
 from deepslam.frontend.classical import ClassicalDetector
-from deepslam.frontend.magicpoint import VARIANTS, MagicPointNet
+from deepslam.frontend.magicpoint import VARIANTS, MagicPointConfig, MagicPointNet
 from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer
-from deepslam.frontend.nets import fold_batchnorm
+from deepslam.frontend.nets import BlurMaxPool, fold_batchnorm
 from deepslam.frontend.polish import PolishConfig, normalise_contrast, polish
 from deepslam.frontend.training.magicwarp import warp_loss
 from deepslam.sim import shapes
@@ -25,7 +25,12 @@ def _randomise_batchnorm(model):
 
 
 @pytest.mark.parametrize(
-    "net, shape", [(MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)), (MagicWarpNet(), (2, 130, 15, 20))]
+    "net, shape",
+    [
+        (MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)),
+        (MagicPointNet(MagicPointConfig(pool="blur")), (2, 1, 120, 160)),
+        (MagicWarpNet(), (2, 130, 15, 20)),
+    ],
 )
 def test_batchnorm_folding_keeps_outputs(net, shape):
     torch.manual_seed(0)
@@ -35,6 +40,23 @@ def test_batchnorm_folding_keeps_outputs(net, shape):
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
     with torch.no_grad():
         torch.testing.assert_close(folded(x), net(x), atol=1e-5, rtol=1e-5)
+
+
+def test_blur_max_pool_is_a_max_then_a_binomial_blur_and_moves_less_with_a_one_pixel_shift():
+    rng = np.random.default_rng(0)
+    image = cv2.GaussianBlur(rng.random((64, 80)).astype(np.float32), (0, 0), 0.7)  # texture near the grid scale
+    pooled = BlurMaxPool()(torch.from_numpy(image)[None, None])[0, 0].numpy()
+    window_max = np.maximum.reduce([np.pad(image, ((0, 1), (0, 1)), mode="edge")[dy : dy + 64, dx : dx + 80]
+                                    for dy in (0, 1) for dx in (0, 1)])  # fmt: skip
+    blurred = cv2.sepFilter2D(window_max, -1, np.array([0.25, 0.5, 0.25]), np.array([0.25, 0.5, 0.25]),
+                              borderType=cv2.BORDER_REFLECT_101)  # fmt: skip
+    np.testing.assert_allclose(pooled, blurred[::2, ::2], atol=1e-6)
+
+    def change_under_shift(pool):  # a one-pixel shift moves the pooled grid by half a cell
+        x = torch.from_numpy(image)[None, None]
+        return (pool(x[..., 1:63, 1:79]) - pool(x[..., :62, :78])).abs().mean().item()
+
+    assert change_under_shift(BlurMaxPool()) < 0.7 * change_under_shift(torch.nn.MaxPool2d(2))
 
 
 def test_cells_encoding():

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from deepslam.frontend import MagicPoint
+from deepslam.frontend.magicpoint import MagicPointConfig
 from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
 from deepslam.frontend.training import magicpoint as train_magicpoint
 from deepslam.frontend.training import magicwarp as train_magicwarp
@@ -310,16 +311,16 @@ def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_p
         adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))
 
 
-def test_homographic_adaptation_trains_a_wider_detector_from_its_teacher(tmp_path):
+def test_homographic_adaptation_trains_a_wider_anti_aliased_detector_from_its_teacher(tmp_path):
     from deepslam.frontend.training import adaptation
 
     config = adaptation.AdaptConfig(
         photos=(str(_photo_folder(tmp_path / "photos")),), views=4, warps=3, iterations=2, batch=4, validate_every=2,
-        rounds=1, validation_views=1, widths=(8, 8, 16, 24), head=40,
+        rounds=1, validation_views=1, widths=(8, 8, 16, 24), head=40, pool="blur",
     )  # fmt: skip
-    adaptation.run(tmp_path / "wide", config)
+    adaptation.run(tmp_path / "wide", config)  # labelled by S, which max-pools
     detector = MagicPoint.pretrained("S-HA", path=tmp_path / "wide" / "round1" / "best.pt")
-    assert detector.net.config.widths == (8, 8, 16, 24) and detector.net.config.head == 40
+    assert detector.net.config == MagicPointConfig((8, 8, 16, 24), 40, "blur")
     with pytest.raises(ValueError, match="--widths"):
         replace(config, widths=(8, 0, 16, 16))
     adaptation.run(tmp_path / "wide_again", config)  # the same training again: the new units follow the seed

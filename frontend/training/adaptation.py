@@ -20,6 +20,7 @@ import json
 import logging
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -96,6 +97,14 @@ class AdaptConfig(LoopConfig):
     head: int = field(
         default=VARIANTS["S-HA"].head,
         metadata={"help": "width of the trained detector's 3x3 layer before its 65-channel head", "min": 1},
+    )
+    pool: Literal["max", "blur"] = field(
+        default=VARIANTS["S-HA"].pool,
+        metadata={
+            "help": "the trained detector's 2x2 pooling: blur (S-HA's; anti-aliased, Zhang 2019: a max over every "
+            "2x2 window, then a binomial blur sampled every second pixel, so that detections follow sub-cell "
+            "motion) or max (the paper's)"
+        },
     )
     size: tuple[int, int] = (120, 160)
     validation_views: int = 2  # views per validation photograph, each seen as a jittered sequence
@@ -334,7 +343,7 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
         round_config = _round_config(config, round_)
         with torch.random.fork_rng():  # a wider network's new units come from the seed
             torch.manual_seed(round_config.seed)
-            net = MagicPointNet(MagicPointConfig(config.widths, config.head))
+            net = MagicPointNet(MagicPointConfig(config.widths, config.head, config.pool))
         load_weights(net, detector_weights)  # starts from the labelling detector; a misfit fails before labelling
         teacher = MagicPoint.pretrained("S-HA", path=detector_weights).net  # folded, in its own shape
         views, labels = labelled_views(folder / "labels", teacher, source, key, config)

@@ -13,7 +13,7 @@ from torch import nn
 from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
 from deepslam.frontend.nets import read_weights
 
-WIDENABLE = {"widths", "hidden", "head"}  # network config fields --init may widen (same layers, more units)
+WIDENABLE = {"widths", "hidden", "head", "pool"}  # config fields --init may change: more units, weightless pooling
 
 
 def embed_weights(model: nn.Module, weights: dict) -> None:
