@@ -12,10 +12,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from deepslam.frontend.evaluation.detector import PHOTOS, available_detectors, sequence_repeatability
+from deepslam.frontend.evaluation.detector import PHOTOS, available_detectors, moved, sequence_repeatability
 from deepslam.sim.world import photo
 
 
@@ -23,12 +22,7 @@ def shifted_pairs(images: list[np.ndarray], shift_px: float) -> list[tuple[list[
     """Each image and itself moved right by ``shift_px`` pixels (reflected border), with the homography
     (3, 3) from the first to the second, as ``sequence_repeatability`` takes them."""
     move = np.array([[1.0, 0.0, shift_px], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-
-    def moved(image: np.ndarray) -> np.ndarray:
-        return cv2.warpAffine(image, move[:2], image.shape[::-1], flags=cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_REFLECT_101)  # fmt: skip
-
-    return [([image, moved(image)], [move]) for image in images]
+    return [([image, moved(image, move)], [move]) for image in images]
 
 
 def main() -> None:

@@ -207,15 +207,17 @@ PAPER_STATIC_R = {  # the paper's 30 Static Corners repeatability: (160x120 clea
 }
 
 
+def moved(image: np.ndarray, move: np.ndarray) -> np.ndarray:
+    """``image`` (H, W) moved by the affine map ``move`` (3, 3) (bilinear, reflected borders), same size."""
+    return cv2.warpAffine(image, move[:2], image.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+
+
 def _jittered(sequence: list[np.ndarray], rng: np.random.Generator, jitter_px: float) -> tuple[list, list]:
     """Each frame moved by its own random translation of up to ``jitter_px`` pixels in x and y (a
     hand-held camera; reflected borders); returns (frames, homographies (3, 3) from each frame to the next)."""
     shifts = rng.uniform(-jitter_px, jitter_px, (len(sequence), 2))
     moves = [np.array([[1.0, 0, dx], [0, 1, dy], [0, 0, 1]]) for dx, dy in shifts]
-    frames = [
-        cv2.warpAffine(f, M[:2], f.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-        for f, M in zip(sequence, moves, strict=False)
-    ]
+    frames = [moved(f, M) for f, M in zip(sequence, moves, strict=False)]
     return frames, [b @ np.linalg.inv(a) for a, b in zip(moves, moves[1:], strict=False)]
 
 
