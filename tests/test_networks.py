@@ -8,7 +8,7 @@ from deepslam.frontend.cells import points_to_cells
 from deepslam.frontend.classical import ClassicalDetector
 from deepslam.frontend.magicpoint import VARIANTS, MagicPointConfig, MagicPointNet
 from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer
-from deepslam.frontend.nets import BlurMaxPool, fold_batchnorm
+from deepslam.frontend.nets import BlurMaxPool, OneDnnConv2d, fold_batchnorm
 from deepslam.frontend.polish import PolishConfig, normalise_contrast, polish
 from deepslam.frontend.training.magicwarp import warp_loss
 from deepslam.sim import shapes
@@ -28,17 +28,22 @@ def _randomise_batchnorm(model):
     "net, shape",
     [
         (MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)),
+        (MagicPointNet(VARIANTS["S"]), (1, 1, 120, 160)),  # batch 1: PyTorch would pick its reference kernel
         (MagicPointNet(MagicPointConfig(pool="blur")), (2, 1, 120, 160)),
         (MagicWarpNet(), (2, 130, 15, 20)),
     ],
 )
-def test_batchnorm_folding_keeps_outputs(net, shape):
+def test_batchnorm_folding_keeps_outputs(net, shape, monkeypatch):
     torch.manual_seed(0)
     net = _randomise_batchnorm(net)
     x = torch.rand(shape)
     folded = fold_batchnorm(net)
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
+    convs = [m for m in folded.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert all(isinstance(m, OneDnnConv2d) == (m.in_channels == 1) for m in convs)
     with torch.no_grad():
+        torch.testing.assert_close(folded(x), net(x), atol=1e-5, rtol=1e-5)
+        monkeypatch.setattr(torch.backends.mkldnn, "enabled", False)  # oneDNN switched off: PyTorch's own kernels
         torch.testing.assert_close(folded(x), net(x), atol=1e-5, rtol=1e-5)
 
 

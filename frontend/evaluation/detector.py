@@ -122,14 +122,15 @@ def report(
 
 def table_lines(result: dict) -> list[str]:
     """The paper's table with this run's figures and the paper's beside them."""
+    width = max(len("detector"), *map(len, result["detectors"]))
     lines = [
-        f"{'detector':<13} {'mAP clean':>10} {'mAP noisy':>10} {'MLE clean':>10} {'MLE noisy':>10}"
+        f"{'detector':<{width}} {'mAP clean':>10} {'mAP noisy':>10} {'MLE clean':>10} {'MLE noisy':>10}"
         "   paper (same columns)"
     ]
     for name, figures in result["detectors"].items():
         ours = (figures["clean"]["map"], figures["noisy"]["map"], figures["clean"]["mle"], figures["noisy"]["mle"])
         paper = " / ".join(f"{v:.3f}" for v in PAPER_TABLE.get(name, ()))
-        lines.append(f"{name:<13} " + " ".join(f"{v:>10.3f}" for v in ours) + f"   {paper}")
+        lines.append(f"{name:<{width}} " + " ".join(f"{v:>10.3f}" for v in ours) + f"   {paper}")
     return lines
 
 
