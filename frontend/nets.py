@@ -102,6 +102,8 @@ def _on_onednn(conv: nn.Conv2d) -> OneDnnConv2d:
         conv.dilation,
         conv.groups,
         conv.bias is not None,
+        device=conv.weight.device,
+        dtype=conv.weight.dtype,
     )
     fast.load_state_dict(conv.state_dict())
     return fast.eval()

@@ -29,6 +29,7 @@ def _randomise_batchnorm(model):
     [
         (MagicPointNet(VARIANTS["S"]), (2, 1, 120, 160)),
         (MagicPointNet(VARIANTS["S"]), (1, 1, 120, 160)),  # batch 1: PyTorch would pick its reference kernel
+        (MagicPointNet(VARIANTS["S"]).double(), (1, 1, 120, 160)),  # float64 stays float64, on PyTorch's kernels
         (MagicPointNet(MagicPointConfig(pool="blur")), (2, 1, 120, 160)),
         (MagicWarpNet(), (2, 130, 15, 20)),
     ],
@@ -36,7 +37,7 @@ def _randomise_batchnorm(model):
 def test_batchnorm_folding_keeps_outputs(net, shape, monkeypatch):
     torch.manual_seed(0)
     net = _randomise_batchnorm(net)
-    x = torch.rand(shape)
+    x = torch.rand(shape, dtype=next(net.parameters()).dtype)
     folded = fold_batchnorm(net)
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
     convs = [m for m in folded.modules() if isinstance(m, torch.nn.Conv2d)]
