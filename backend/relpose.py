@@ -296,7 +296,7 @@ def _degenerate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> str:
         return "the camera matrix K is singular or not finite"
     if not (np.all(np.isfinite(p1)) and np.all(np.isfinite(p2))):
         return "the matches hold non-finite coordinates"
-    distinct = min(len(np.unique(np.round(p, 3), axis=0)) for p in (p1, p2))
+    distinct = min(len(np.unique(np.round(p, 3).view(np.complex128))) for p in (p1, p2))  # rows as x + iy: fast
     if distinct < MIN_MATCHES:
         return f"{distinct} distinct matched points, at least {MIN_MATCHES} needed"
     for points in (p1, p2):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -161,26 +162,42 @@ class MagicWarp:
 def refine(
     points_a: np.ndarray,
     points_b: np.ndarray,
-    H: np.ndarray,
+    guesses: np.ndarray | Sequence[np.ndarray],
     radii: tuple[float, ...] = (8.0, 3.0),
     threshold: float = 1.5,
 ) -> np.ndarray:
     """Refine a homography (3, 3) mapping a to b by snapping and a robust fit, still without descriptors.
 
-    For each radius (pixels) in turn: pair the points of a warped by ``H`` with their nearest points of
-    b (``match``), then fit a homography to those pairs with OpenCV's USAC MAGSAC (``threshold``
-    pixels). Keeps the current ``H`` when fewer than 8 pairs are found or the fit fails.
+    ``guesses`` is one homography (3, 3) or several (for example MagicWarp's estimate, the previous
+    frame's and the identity). At the first radius (pixels) the points of a, warped by every guess, are
+    paired with their nearest points of b (``match``), and one homography is fitted to all those pairs with
+    OpenCV's USAC MAGSAC (``threshold`` pixels): the pairs of the guess most points agree with form the
+    consensus, the others are its outliers. Each later radius snaps by the fitted homography and fits again.
+    When fewer than 8 pairs are found or a fit fails, the homography so far stands (before the first fit:
+    the guess most points of a snap to within ``threshold`` pixels, the first on ties).
     """
     a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
+    current = [guesses] if isinstance(guesses, np.ndarray) and guesses.ndim == 2 else list(guesses)
+    if not current:
+        raise ValueError("refine needs at least one guess")
     for radius in radii:
-        pairs = match(a, b, H, radius)
+        pairs = _each_once([match(a, b, H, radius) for H in current], len(b))
         if len(pairs) < 8:
             break
         fitted = fit_homography(a[pairs[:, 0]], b[pairs[:, 1]], threshold)
         if fitted is None:
             break
-        H = fitted
-    return H
+        current = [fitted]
+    support = [len(match(a, b, H, threshold)) for H in current] if len(current) > 1 else [0]
+    return current[int(np.argmax(support))]
+
+
+def _each_once(pairs: list[np.ndarray], count_b: int) -> np.ndarray:
+    """The index pairs (K, 2) of one or several ``match`` results: one as it is, several each pair once,
+    ordered by (i, j) (``np.unique`` over the rows, done on i * ``count_b`` + j: far faster)."""
+    if len(pairs) == 1:
+        return pairs[0]
+    return np.stack(np.divmod(np.unique(np.vstack(pairs) @ np.array([count_b, 1])), count_b), 1)
 
 
 def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: float = 4.0) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Front-ends: turn each frame into tracked points with track ids, behind one interface.
 
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
-  snapping and a robust homography fit, checked against the no-motion and constant-motion guesses),
+  snapping and one robust homography fit over its pairs and those of the no-motion and constant-motion
+  guesses),
   nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top); a track the detector
   misses is carried on by that homography and aligned to the frame it was last detected in. The pairs a
   pose is measured from (a frame and its keyframe) are confirmed and polished by ``frontend.polish``
@@ -29,7 +30,6 @@ from deepslam.geometry import in_image, warp_points
 
 Frontend = Literal["magic", "classical", "oracle"]
 FRONTENDS: tuple[str, ...] = get_args(Frontend)
-SUPPORT_PX = 1.5  # a new detection this close to a previous one moved by a candidate homography supports it
 
 
 @dataclass
@@ -106,10 +106,9 @@ class MagicTracker(Tracker):
     detections (all of which are followed, reported or not), so that new points do not crowd out the tracks
     a keyframe shares.
     ``iterations`` applies MagicWarp iteratively; ``refine`` polishes its H by snapping and a robust
-    homography fit (``frontend.magicwarp.refine``) and lets the previous H and the identity, refined the
-    same way, compete with it (``_homography``); ``ransac`` adds a fundamental-matrix check; ``polish`` (a
-    ``PolishConfig``, or None for a purely geometric tracker) confirms and polishes the pairs a pose is
-    measured from (``confirm``)."""
+    homography fit over its pairs and those the previous H and the identity snap (``_homography``);
+    ``ransac`` adds a fundamental-matrix check; ``polish`` (a ``PolishConfig``, or None for a purely
+    geometric tracker) confirms and polishes the pairs a pose is measured from (``confirm``)."""
 
     def __init__(
         self,
@@ -142,19 +141,16 @@ class MagicTracker(Tracker):
         self.appearances: list[np.ndarray] = []  # the last max_age + 1 frames as polishing sees them, oldest first
 
     def _homography(self, points: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
-        """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: MagicWarp's
-        estimate, the previous frame's H (constant motion) and the identity (no motion) are each refined,
-        and the one most detections snap to within ``SUPPORT_PX`` pixels wins (MagicWarp on ties); without,
-        MagicWarp's estimate as it is. With fewer than ``MIN_POINTS`` points in either frame MagicWarp has
-        nothing to go on: the previous H and the identity compete alone."""
+        """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: fitted robustly
+        to the pairs that MagicWarp's estimate, the previous frame's H (constant motion) and the identity (no
+        motion) snap (``frontend.magicwarp.refine``), so that the motion most detections agree with wins;
+        without, MagicWarp's estimate as it is. With fewer than ``MIN_POINTS`` points in either frame
+        MagicWarp has nothing to go on: the previous H and the identity are the only guesses."""
         enough = min(len(self.detections), len(points)) >= MIN_POINTS
         guesses = [self.warp.estimate(self.detections, points, image_shape, self.iterations)] if enough else []
         if not self.refine:
             return guesses[0] if guesses else self.last_homography
-        guesses += [self.last_homography, np.eye(3)]
-        candidates = [refine(self.detections, points, guess) for guess in guesses]
-        support = [len(match(self.detections, points, candidate, SUPPORT_PX)) for candidate in candidates]
-        return candidates[int(np.argmax(support))]
+        return refine(self.detections, points, guesses + [self.last_homography, np.eye(3)])
 
     def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
         started = time.perf_counter()
@@ -335,8 +331,8 @@ class TrackerConfig:
     refine: bool = field(
         default=True,
         metadata={
-            "help": "refine MagicWarp's homography by snapping and a robust fit, and let the no-motion and "
-            "constant-motion guesses, refined the same way, replace it when more detections agree with them"
+            "help": "refine MagicWarp's homography by snapping and a robust fit over the pairs it, the no-motion "
+            "and the constant-motion guess snap, so that the motion most detections agree with wins"
         },
     )
     carry: bool | None = field(

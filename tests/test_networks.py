@@ -220,7 +220,7 @@ def test_match_is_mutually_exclusive_nearest_neighbour():
     assert match(a, np.zeros((0, 2)), np.eye(3)).shape == (0, 2)
 
 
-def test_refine_recovers_a_homography_from_a_rough_guess(rng):
+def test_refine_recovers_a_homography_from_a_rough_guess_or_the_best_of_several(rng):
     from deepslam.frontend.magicwarp import refine
     from deepslam.geometry import warp_points
 
@@ -232,6 +232,12 @@ def test_refine_recovers_a_homography_from_a_rough_guess(rng):
     assert refined[2, 2] == 1.0
     assert np.abs(warp_points(a, refined) - warp_points(a, true_H)).max() < 1e-3
     assert refine(a[:5], b[:5], rough) is rough  # too few pairs: the guess stands
+    far_off = np.array([[1.0, 0, 40.0], [0, 1, 30.0], [0, 0, 1]])
+    joint = refine(a, b, [far_off, rough, np.eye(3)])  # one fit over all their pairs: the far-off ones are outliers
+    assert np.abs(warp_points(a, joint) - warp_points(a, true_H)).max() < 1e-3
+    assert refine(a[:5], b[:5], [far_off, true_H]) is true_H  # too few pairs: the guess most points agree with
+    with pytest.raises(ValueError, match="at least one guess"):
+        refine(a, b, [])
 
 
 def test_motion_errors_measure_what_the_warp_recovers():
