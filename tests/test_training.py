@@ -331,6 +331,38 @@ def test_homographic_adaptation_trains_a_wider_anti_aliased_detector_from_its_te
     assert not (tmp_path / "narrow" / "round1" / "labels").exists()
 
 
+def test_shift_consistency_is_zero_for_a_heatmap_that_moves_with_its_view():
+    from deepslam.frontend.training.adaptation import shift_consistency, shifted_views
+
+    rng = np.random.default_rng(4)
+    views = rng.integers(0, 256, (6, 120, 160), dtype=np.uint8)
+    moved, shifts = shifted_views(views, rng)
+    assert np.all((shifts >= 0) & (shifts < 8)) and np.all(shifts.any(axis=1))  # within a cell, never none
+    for view, image, (dx, dy) in zip(views, moved, shifts, strict=True):
+        assert np.array_equal(image[dy:, dx:], view[: 120 - dy, : 160 - dx])
+    heat = torch.from_numpy(rng.random((6, 120, 160), dtype=np.float32))
+    follows = torch.stack([torch.roll(h, (int(dy), int(dx)), (0, 1)) for h, (dx, dy) in zip(heat, shifts, strict=True)])
+    assert float(shift_consistency(heat, follows, shifts)) == 0.0
+    assert float(shift_consistency(heat, heat.flip(1), shifts)) > 0.1
+
+
+def test_homographic_adaptation_trains_with_shift_consistency(tmp_path):
+    from deepslam.frontend.training import adaptation
+
+    config = adaptation.AdaptConfig(
+        photos=(str(_photo_folder(tmp_path / "photos")),), views=4, warps=3, iterations=2, batch=4, validate_every=2,
+        rounds=1, validation_views=1, shift_consistency=1.0,
+    )  # fmt: skip
+    adaptation.run(tmp_path / "shift", config)
+    plain = tmp_path / "plain"
+    adaptation.run(plain, replace(config, shift_consistency=0.0))
+    trained = MagicPoint.pretrained("S-HA", path=tmp_path / "shift" / "round1" / "best.pt").net.state_dict()
+    without = MagicPoint.pretrained("S-HA", path=plain / "round1" / "best.pt").net.state_dict()
+    assert not all(torch.equal(value, without[name]) for name, value in trained.items())  # the term moved the weights
+    with pytest.raises(ValueError, match="--shift-consistency"):
+        replace(config, shift_consistency=-1.0)
+
+
 def _torchrun(out: Path, iterations: int, batch: int = 4):
     import subprocess
     import sys

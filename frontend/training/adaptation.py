@@ -106,6 +106,15 @@ class AdaptConfig(LoopConfig):
             "motion) or max (the paper's)"
         },
     )
+    shift_consistency: float = field(
+        default=0.0,
+        metadata={
+            "help": "weight of a term that makes each photograph's heatmap follow the image within a cell: every "
+            "view is also seen shifted by 0-7 px, and the square roots of the two heatmaps must agree where both "
+            "see the view (0: off)",
+            "min": 0,
+        },
+    )
     size: tuple[int, int] = (120, 160)
     validation_views: int = 2  # views per validation photograph, each seen as a jittered sequence
 
@@ -125,6 +134,8 @@ class AdaptConfig(LoopConfig):
         ]
         if not (np.isfinite(self.label_threshold) and self.label_threshold >= 0) or self.erode < 0:
             problems.append("--label-threshold and --erode must be finite and at least 0")
+        if not (np.isfinite(self.shift_consistency) and self.shift_consistency >= 0):
+            problems.append(f"--shift-consistency must be finite and at least 0, got {self.shift_consistency}")
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -296,6 +307,38 @@ def photo_batch(
     return np.stack(images), soft_targets(points, config.size)
 
 
+SHIFT_MARGIN = 16  # pixels of the border the shift-consistency term leaves out (reflected in the shifted view)
+
+
+def shifted_views(images: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Each view (B, H, W) uint8 moved right by dx and down by dy pixels, each drawn from 0-7 and not both
+    0 (less than MagicPoint's 8-pixel cell), its border reflected: (moved views (B, H, W), shifts (B, 2))."""
+    moved, shifts = [], []
+    for image in images:
+        dx, dy = 0, 0
+        while not (dx or dy):
+            dx, dy = (int(d) for d in rng.integers(0, CELL, 2))
+        shift = np.float32([[1, 0, dx], [0, 1, dy]])
+        moved.append(cv2.warpAffine(image, shift, image.shape[::-1], borderMode=cv2.BORDER_REFLECT_101))
+        shifts.append((dx, dy))
+    return np.stack(moved), np.array(shifts, np.int64).reshape(-1, 2)
+
+
+def shift_consistency(heat: torch.Tensor, heat_moved: torch.Tensor, shifts: np.ndarray) -> torch.Tensor:
+    """How far heatmaps (B, H, W) of views and of the views moved by ``shifts`` (B, 2) [dx, dy] disagree:
+    the squared difference of their square roots (so that weak peaks count, not just strong ones), summed
+    over the pixels the two have in common ``SHIFT_MARGIN`` pixels from the border, per 8x8 cell, averaged
+    over the views."""
+    h, w = heat.shape[1:]
+    m = SHIFT_MARGIN
+    terms = []
+    for view, moved, (dx, dy) in zip(heat, heat_moved, shifts.tolist(), strict=True):
+        a = view[m : h - m, m : w - m].clamp_min(1e-8).sqrt()
+        b = moved[m + dy : h - m + dy, m + dx : w - m + dx].clamp_min(1e-8).sqrt()
+        terms.append(((a - b) ** 2).sum() / (a.numel() / (CELL * CELL)))
+    return torch.stack(terms).mean()
+
+
 def validation_sequences(config: AdaptConfig, validation: list[photos.Photo]) -> dict[str, list]:
     """Jittered sequences (up to 2 px a frame) of validation photographs, clean and noisy."""
     from deepslam.frontend.evaluation.detector import photo_sequences
@@ -373,14 +416,22 @@ def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
         stream = stream or training_stream(rng, config.size, clean_share=0.25)
         synthetic = round(batch * config.synthetic_share)
         images, targets = photo_batch(views, labels, rng, batch - synthetic, config)
+        moved, shifts = images[:0], np.zeros((0, 2), np.int64)
+        if config.shift_consistency:  # from a stream of its own: the batches stay those of a run without it
+            moved, shifts = shifted_views(images, np.random.default_rng([config.seed, step]))
         if synthetic:
             shapes_images, corners = zip(*(next(stream) for _ in range(synthetic)), strict=True)
             images = np.concatenate([images, np.stack(shapes_images)])
             targets = np.concatenate([targets, _one_hot(cell_labels(list(corners), config.size, rng))])
         device = next(net.parameters()).device
-        x = torch.from_numpy(images).float().div_(255.0)[:, None].to(device)
-        log_p = torch.log_softmax(net(x), dim=1)
-        return {"loss": -(torch.from_numpy(targets).to(device) * log_p).sum(1).mean()}
+        x = torch.from_numpy(np.concatenate([images, moved])).float().div_(255.0)[:, None].to(device)
+        logits = net(x)
+        log_p = torch.log_softmax(logits[: len(images)], dim=1)
+        loss = -(torch.from_numpy(targets).to(device) * log_p).sum(1).mean()
+        if len(moved):
+            heat = cells_to_heatmap(torch.softmax(logits, dim=1))
+            loss = loss + config.shift_consistency * shift_consistency(heat[: len(moved)], heat[len(images) :], shifts)
+        return {"loss": loss}
 
     def validate(model: MagicPointNet) -> dict:
         detector = MagicPoint(model, threshold=0.001, subpixel="centroid")
