@@ -332,7 +332,7 @@ def test_homographic_adaptation_trains_a_wider_anti_aliased_detector_from_its_te
 
 
 def test_shift_consistency_is_zero_for_a_heatmap_that_moves_with_its_view():
-    from deepslam.frontend.training.adaptation import shift_consistency, shifted_views
+    from deepslam.frontend.training.adaptation import shift_disagreement, shifted_views
 
     rng = np.random.default_rng(4)
     views = rng.integers(0, 256, (6, 120, 160), dtype=np.uint8)
@@ -342,8 +342,8 @@ def test_shift_consistency_is_zero_for_a_heatmap_that_moves_with_its_view():
         assert np.array_equal(image[dy:, dx:], view[: 120 - dy, : 160 - dx])
     heat = torch.from_numpy(rng.random((6, 120, 160), dtype=np.float32))
     follows = torch.stack([torch.roll(h, (int(dy), int(dx)), (0, 1)) for h, (dx, dy) in zip(heat, shifts, strict=True)])
-    assert float(shift_consistency(heat, follows, shifts)) == 0.0
-    assert float(shift_consistency(heat, heat.flip(1), shifts)) > 0.1
+    assert float(shift_disagreement(heat, follows, shifts)) == 0.0
+    assert float(shift_disagreement(heat, heat.flip(1), shifts)) > 0.1
 
 
 def test_homographic_adaptation_trains_with_shift_consistency(tmp_path):

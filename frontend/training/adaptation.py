@@ -324,7 +324,7 @@ def shifted_views(images: np.ndarray, rng: np.random.Generator) -> tuple[np.ndar
     return np.stack(moved), np.array(shifts, np.int64).reshape(-1, 2)
 
 
-def shift_consistency(heat: torch.Tensor, heat_moved: torch.Tensor, shifts: np.ndarray) -> torch.Tensor:
+def shift_disagreement(heat: torch.Tensor, heat_moved: torch.Tensor, shifts: np.ndarray) -> torch.Tensor:
     """How far heatmaps (B, H, W) of views and of the views moved by ``shifts`` (B, 2) [dx, dy] disagree:
     the squared difference of their square roots (so that weak peaks count, not just strong ones), summed
     over the pixels the two have in common ``SHIFT_MARGIN`` pixels from the border, per 8x8 cell, averaged
@@ -430,7 +430,7 @@ def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
         loss = -(torch.from_numpy(targets).to(device) * log_p).sum(1).mean()
         if len(moved):
             heat = cells_to_heatmap(torch.softmax(logits, dim=1))
-            loss = loss + config.shift_consistency * shift_consistency(heat[: len(moved)], heat[len(images) :], shifts)
+            loss = loss + config.shift_consistency * shift_disagreement(heat[: len(moved)], heat[len(images) :], shifts)
         return {"loss": loss}
 
     def validate(model: MagicPointNet) -> dict:
