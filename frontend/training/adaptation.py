@@ -318,8 +318,7 @@ def shifted_views(images: np.ndarray, rng: np.random.Generator) -> tuple[np.ndar
         dx, dy = 0, 0
         while not (dx or dy):
             dx, dy = (int(d) for d in rng.integers(0, CELL, 2))
-        shift = np.float32([[1, 0, dx], [0, 1, dy]])
-        moved.append(cv2.warpAffine(image, shift, image.shape[::-1], borderMode=cv2.BORDER_REFLECT_101))
+        moved.append(warp_image(image, np.array([[1.0, 0, dx], [0, 1, dy], [0, 0, 1]]), border_value=-1))
         shifts.append((dx, dy))
     return np.stack(moved), np.array(shifts, np.int64).reshape(-1, 2)
 
