@@ -9,6 +9,11 @@ deepslam eval realimages --out docs/eval --jobs "$JOBS"
 deepslam eval realimages --out docs/eval --jobs "$JOBS" --jitter 2
 python examples/shift_repeatability.py --detectors MagicPointS MagicPointS-HA MagicPointS-2x Harris \
   > docs/eval/shift_repeatability.txt
+# these two need the training photographs (README, "Training and beyond one machine"): PHOTOS="DIR DIR"
+if [ -n "${PHOTOS:-}" ]; then
+  python examples/subpixel_precision.py --photos $PHOTOS > docs/eval/subpixel_precision.txt
+  python examples/subpixel_precision.py --photos $PHOTOS --whole-pixels > docs/eval/subpixel_precision_whole.txt
+fi
 deepslam eval detector --out docs/eval --jobs "$JOBS" \
   --detectors MagicPointS MagicPointS-HA MagicPointS-2x FAST Harris Shi
 deepslam eval detector --out docs/eval/detector_L --jobs "$JOBS" --per-category 300 --sweep-per-category 10 \

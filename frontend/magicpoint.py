@@ -34,7 +34,7 @@ VARIANTS = {
     "L": MagicPointConfig((64, 64, 128, 128), 256),
     "S-HA": MagicPointConfig((8, 8, 16, 16), 32, "blur"),  # S on real photographs: homographic adaptation
 }
-INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "centroid"}}  # options a variant was trained for
+INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "parabola"}}  # a variant's own extraction (model card)
 
 
 class MagicPointNet(nn.Module):

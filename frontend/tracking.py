@@ -370,7 +370,7 @@ class TrackerConfig:
 
 DETECTOR_PRESETS: dict[str, dict] = {
     "S": {"upsample": 2, "grid_shifts": 2, "subpixel": "parabola"},  # S needs the work-arounds on photographs
-    "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "centroid"},  # one pass
+    "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "parabola"},  # one pass
 }
 """How the magic front-end runs each MagicPoint; ``TrackerConfig.detector_scale`` overrides ``upsample``
 (S at scale 1 then averages four grid shifts)."""

@@ -289,6 +289,30 @@ def test_an_enlarged_teacher_labels_corners_in_the_views_pixels():
         AdaptConfig(teacher_scale=0)
 
 
+def test_labels_are_refined_as_configured_and_their_cache_knows_how():
+    from deepslam.frontend.magicpoint import WEIGHTS, MagicPoint
+    from deepslam.frontend.training.adaptation import AdaptConfig, label_views, labelling_key
+    from deepslam.sim.shapes import evaluation_set
+
+    net = MagicPoint.pretrained("S").net
+    images = np.stack([image for _, image, _ in evaluation_set(1, seed=5)][:3])
+    labels = {
+        refine: label_views(net, images, np.random.default_rng(0), AdaptConfig(warps=4, label_refine=refine))
+        for refine in ("none", "centroid", "parabola")
+    }
+    at_pixels = labels["none"]
+    assert np.isfinite(at_pixels[:, :, 0]).sum() > 10 and np.array_equal(
+        at_pixels[..., :2], np.round(at_pixels[..., :2]), equal_nan=True
+    )
+    for refine, most in (("centroid", 1.0), ("parabola", 0.5)):  # the same peaks, moved within their pixel's reach
+        moved = np.abs(labels[refine][..., :2] - at_pixels[..., :2])
+        assert np.array_equal(np.isnan(moved), np.isnan(at_pixels[..., :2])), refine
+        assert 0 < np.nanmax(moved) <= most, refine
+    detector = WEIGHTS / "magicpoint_S.pt"
+    assert "label_refine" not in labelling_key(AdaptConfig(), detector, [], 1)  # centroid labels keep their key
+    assert labelling_key(AdaptConfig(label_refine="parabola"), detector, [], 1)["label_refine"] == "parabola"
+
+
 def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_path):
     from deepslam.frontend.training import adaptation
 
@@ -306,7 +330,7 @@ def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_p
     with pytest.raises(ValueError, match="trained on labels of another"):
         adaptation.run(tmp_path / "ha", replace(config, warps=4))
     detector = MagicPoint.pretrained("S-HA", path=tmp_path / "ha" / "round2" / "best.pt")
-    assert detector.subpixel == "centroid"  # the variant's own extraction default
+    assert detector.subpixel == "parabola"  # the variant's own extraction default
     with pytest.raises(ValueError, match="no folder of photographs"):
         adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))
 

@@ -6,7 +6,8 @@ detector: it is run on ``warps`` random homographic warps of each view, the heat
 positions, are the labels. A detector is then trained on those views (each warped again and, for a
 share, given the paper's photometric noise) mixed with Synthetic Shapes, so that the paper's table
 holds. Targets are soft: a sub-pixel label spreads over the pixels of its cell bilinearly, so the
-network learns where within a pixel a corner lies (read back by ``extract_points(refine="centroid")``).
+network learns where within a pixel a corner lies (read back by a sub-pixel refinement of each peak:
+``extract_points(refine=...)``; validation reads centroids, as every round since the first).
 The next round labels with the detector the last one trained.
 
 On disk, ``OUT/roundK/`` holds the round's label shards (``labels/``, reused while their inputs are
@@ -29,7 +30,7 @@ import torch
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointConfig, MagicPointNet, cells_to_heatmap
 from deepslam.frontend.nets import load_checkpoint
-from deepslam.frontend.points import extract_points
+from deepslam.frontend.points import Subpixel, extract_points
 from deepslam.frontend.training.loop import LoopConfig, train
 from deepslam.frontend.training.magicpoint import cell_labels
 from deepslam.frontend.training.surgery import load_weights
@@ -62,6 +63,14 @@ class AdaptConfig(LoopConfig):
         default=0.0015, metadata={"help": "the smallest averaged corner probability that is a label", "min": 0}
     )
     label_top_k: int = 150  # at most this many labels per view
+    label_refine: Subpixel = field(
+        default="centroid",
+        metadata={
+            "help": "sub-pixel position of each label in the averaged heatmap: centroid (of the peak's 3x3 "
+            "neighbourhood; S-HA v1-v3), parabola (through the peak and its neighbours; more precise, see the "
+            "S-HA model card) or none (the peak's pixel)"
+        },
+    )
     teacher_scale: int = field(
         default=1,
         metadata={
@@ -180,7 +189,7 @@ def label_views(net: torch.nn.Module, images: np.ndarray, rng: np.random.Generat
         seen = cv2.resize(image, (w * s, h * s), interpolation=cv2.INTER_LINEAR) if s > 1 else image
         warps = enlarge @ np.stack(homographies) @ np.linalg.inv(enlarge)
         heat = adapted_heatmap(net, seen, warps, config.erode * s)
-        points = extract_points(heat, config.label_threshold, 4 * s, 4 * s, config.label_top_k, "centroid")
+        points = extract_points(heat, config.label_threshold, 4 * s, 4 * s, config.label_top_k, config.label_refine)
         points[:, :2] = (points[:, :2] + 0.5) / s - 0.5
         labels[i, : len(points)] = points
     return labels
@@ -198,6 +207,8 @@ def labelling_key(config: AdaptConfig, detector: Path, training: list[photos.Pho
     key = {"detector": _file_digest(detector), "photos": [p.name for p in training], "round": round_, **options}
     if config.teacher_scale != 1:  # labels of an unenlarged teacher keep the key they were made with
         key["teacher_scale"] = config.teacher_scale
+    if config.label_refine != "centroid":  # likewise labels at centroids
+        key["label_refine"] = config.label_refine
     return json.loads(json.dumps(key))  # as it reads back from disk (tuples become lists)
 
 
