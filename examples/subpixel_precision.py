@@ -20,6 +20,7 @@ from deepslam.frontend.training.adaptation import AdaptConfig, label_views
 from deepslam.sim import photos
 from deepslam.sim.homography import warp_image
 
+VIEW_SIZE = (120, 160)  # rows, columns
 MATCH_PX = 2.0
 BORDER_PX = 8  # points this close to the edge may leave the moved view
 
@@ -27,13 +28,13 @@ BORDER_PX = 8  # points this close to the edge may leave the moved view
 def shifted_views(
     validation: list[photos.Photo], count: int, seed: int, whole_pixels: bool = False
 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``count`` random views of the photographs, each with itself moved: [(views (2, 120, 160) uint8, the
+    """``count`` random views of the photographs, each with itself moved: [(views (2, *VIEW_SIZE) uint8, the
     shift (2,) px from the first to the second, rounded to whole pixels if ``whole_pixels``)], drawn with
     ``seed``."""
     rng = np.random.default_rng(seed)
     pairs = []
     for index in range(count):
-        view = photos.random_view(validation[index % len(validation)].load(), rng, (120, 160))
+        view = photos.random_view(validation[index % len(validation)].load(), rng, VIEW_SIZE)
         shift = rng.uniform(-2.0, 2.0, 2)
         shift = np.round(shift) if whole_pixels else shift
         moved = warp_image(view, np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]]))
@@ -44,7 +45,8 @@ def shifted_views(
 def followed_distances(points: np.ndarray, points_moved: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """Distances (M,) px from each point (N, 2+) away from the border, moved by ``shift``, to the nearest of
     ``points_moved`` (K, 2+), for the M points whose nearest lies within ``MATCH_PX``."""
-    inside = np.all((points[:, :2] >= BORDER_PX) & (points[:, :2] <= np.array([159, 119]) - BORDER_PX), axis=1)
+    last = np.array(VIEW_SIZE[::-1]) - 1  # the last pixel's (x, y)
+    inside = np.all((points[:, :2] >= BORDER_PX) & (points[:, :2] <= last - BORDER_PX), axis=1)
     expected = points[inside, :2] + shift
     if not len(expected) or not len(points_moved):
         return np.zeros(0)
