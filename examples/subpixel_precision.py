@@ -1,8 +1,9 @@
 """How precisely a MagicPoint's points and its homographic-adaptation labels follow a sub-pixel motion, for
 each sub-pixel refinement of their peaks: on random 160x120 views of the validation photographs (never
 trained on, never used by an evaluation), each view against itself moved by a random shift of up to 2 px
-along x and y (bilinear), the mean and median distance between a point of the view, moved, and the nearest
-point of the moved view, over the points that have one within 2 px.
+along x and y (bilinear, reflected borders), the mean and median distance between repeated points (a point
+with one of the other view within 2 px once moved, both ways: ``metrics.repeated``, as `deepslam eval
+realimages` measures localisation).
 
     python examples/subpixel_precision.py --photos WALLPAPERS GNOME
 """
@@ -14,47 +15,35 @@ from pathlib import Path
 
 import numpy as np
 
+from deepslam.frontend.evaluation.detector import moved
+from deepslam.frontend.evaluation.metrics import repeated
 from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.points import SUBPIXEL
 from deepslam.frontend.training.adaptation import AdaptConfig, label_views
 from deepslam.sim import photos
-from deepslam.sim.homography import warp_image
 
 VIEW_SIZE = (120, 160)  # rows, columns
-MATCH_PX = 2.0
-BORDER_PX = 8  # points this close to the edge may leave the moved view
 
 
-def shifted_views(
+def view_pairs(
     validation: list[photos.Photo], count: int, seed: int, whole_pixels: bool = False
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """``count`` random views of the photographs, each with itself moved: [(views (2, *VIEW_SIZE) uint8, the
-    shift (2,) px from the first to the second, rounded to whole pixels if ``whole_pixels``)], drawn with
-    ``seed``."""
+    homography (3, 3) from the first to the second: a shift, rounded to whole pixels if ``whole_pixels``)],
+    drawn with ``seed``."""
     rng = np.random.default_rng(seed)
     pairs = []
     for index in range(count):
         view = photos.random_view(validation[index % len(validation)].load(), rng, VIEW_SIZE)
         shift = rng.uniform(-2.0, 2.0, 2)
         shift = np.round(shift) if whole_pixels else shift
-        moved = warp_image(view, np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]]))
-        pairs.append((np.stack([view, moved]), shift))
+        move = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
+        pairs.append((np.stack([view, moved(view, move)]), move))
     return pairs
 
 
-def followed_distances(points: np.ndarray, points_moved: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """Distances (M,) px from each point (N, 2+) away from the border, moved by ``shift``, to the nearest of
-    ``points_moved`` (K, 2+), for the M points whose nearest lies within ``MATCH_PX``."""
-    last = np.array(VIEW_SIZE[::-1]) - 1  # the last pixel's (x, y)
-    inside = np.all((points[:, :2] >= BORDER_PX) & (points[:, :2] <= last - BORDER_PX), axis=1)
-    expected = points[inside, :2] + shift
-    if not len(expected) or not len(points_moved):
-        return np.zeros(0)
-    nearest = np.linalg.norm(expected[:, None] - points_moved[None, :, :2], axis=2).min(1)
-    return nearest[nearest < MATCH_PX]
-
-
 def summary(distances: list[np.ndarray]) -> str:
+    """Mean / median of the distances (px) of every pair, and how many."""
     joined = np.concatenate(distances)
     return f"{joined.mean():.3f} / {np.median(joined):.3f} ({len(joined)})"
 
@@ -87,16 +76,16 @@ def main() -> None:
         net = MagicPoint.pretrained("S-HA", path=args.weights).net
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
-    pairs = shifted_views(validation, args.views, args.seed, args.whole_pixels)
+    pairs = view_pairs(validation, args.views, args.seed, args.whole_pixels)
     print(f"{len(pairs)} views of {len(validation)} validation photographs; distance px mean / median (points)")
     print("refine    labels (64 warps)        detector (one pass)")
     for refine in SUBPIXEL:
         detector, config = MagicPoint(net, subpixel=refine), AdaptConfig(label_refine=refine)
         labelled, detected = [], []
-        for index, (views, shift) in enumerate(pairs):
+        for index, (views, move) in enumerate(pairs):
             labels = label_views(net, views, np.random.default_rng([args.seed, index]), config)
-            labelled.append(followed_distances(*(rows[~np.isnan(rows[:, 0])] for rows in labels), shift))
-            detected.append(followed_distances(*(detector.detect(view) for view in views), shift))
+            labelled.append(repeated(*(rows[~np.isnan(rows[:, 0])] for rows in labels), move, VIEW_SIZE)[1])
+            detected.append(repeated(*(detector.detect(view) for view in views), move, VIEW_SIZE)[1])
         print(f"{refine:8s}  {summary(labelled):23s}  {summary(detected)}")
 
 
