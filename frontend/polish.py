@@ -3,7 +3,8 @@
 MagicPoint's detections jitter by a pixel or so from frame to frame, and a few tracks snap to the wrong
 detection; both pass a robust homography fit and bend the pose. ``polish`` moves each current point to
 where Lucas-Kanade aligns the keyframe's patch around its partner (starting from the tracked position,
-no pyramid) and drops the pairs it cannot confirm within ``max_move`` pixels. It aligns contrast-normalised
+no pyramid) and drops the pairs it cannot confirm: moved ``max_move`` pixels or more, or not aligning back
+to their partner (a forward-backward check, ``max_return``). It aligns contrast-normalised
 images (``normalise_contrast``), so brightness, contrast and shading changes between the two frames do not
 bias it, and it first warps the keyframe by the homography the pairs agree on (the dominant plane's), so
 that the patches it compares are seen from about the same viewpoint: the scale, rotation and perspective
@@ -26,12 +27,17 @@ LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
 class PolishConfig:
     """``sigma``: scale (px) of the local mean and deviation ``normalise_contrast`` removes; ``window``:
     Lucas-Kanade window side (px); ``max_move``: a pair whose point moves this far (px) is dropped;
-    ``warp_threshold``: inlier threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the
-    keyframe before aligning, or None to align the keyframe as it is."""
+    ``max_return``, ``return_scale``: so is a pair whose polished point, aligned back into the keyframe,
+    lands farther from its partner than ``max_return`` px and ``return_scale`` times the pairs' median (image
+    noise spreads every pair's return; ``max_return`` None: no backward check); ``warp_threshold``: inlier
+    threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the keyframe before aligning, or
+    None to align the keyframe as it is."""
 
     sigma: float = 3.0
     window: int = 15
     max_move: float = 1.5
+    max_return: float | None = 0.25
+    return_scale: float = 3.0
     warp_threshold: float | None = 3.0
 
 
@@ -64,30 +70,59 @@ def polish(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Align each pair of ``reference_points`` (K, 2) in image ``reference`` and ``current_points`` (K, 2)
     in ``current`` (both from ``normalise_contrast``), the reference warped first by the pairs' homography
-    (``plane_warp``). Returns the polished current points (K, 2) float64 and a mask (K,) of the pairs
-    Lucas-Kanade confirmed: converged, inside the image, within ``config.max_move`` pixels of where they
-    started."""
+    (``plane_warp``), then check each the other way: the current image warped by the homography of the
+    polished pairs, aligned back into the reference. Returns the polished current points (K, 2) float64 and a
+    mask (K,) of the pairs Lucas-Kanade confirmed: converged, inside the image, within ``config.max_move``
+    pixels of where they started and back close enough to their partners (``config.max_return``)."""
+    moved, confirmed = _align_pairs(reference, current, reference_points, current_points, config)
+    if config.max_return is not None and confirmed.any():
+        partners = np.asarray(reference_points, np.float64)[confirmed]
+        back, returned = _align_pairs(current, reference, moved[confirmed], partners, config)
+        distance = np.where(returned, np.linalg.norm(back - partners, axis=1), np.inf)
+        returned &= distance < max(config.max_return, config.return_scale * float(np.median(distance)))
+        confirmed[confirmed] = returned
+    return moved, confirmed
+
+
+def _align_pairs(
+    reference: np.ndarray,
+    current: np.ndarray,
+    reference_points: np.ndarray,
+    current_points: np.ndarray,
+    config: PolishConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One direction of ``polish``: the current points (K, 2) Lucas-Kanade moves to and the mask (K,) of those
+    it confirmed (converged, inside the image, moved less than ``config.max_move`` pixels)."""
     if len(reference_points) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     reference_points = np.asarray(reference_points, np.float64)
-    start = np.asarray(current_points, np.float32).reshape(-1, 1, 2)
-    H = plane_warp(reference_points, start.reshape(-1, 2), config.warp_threshold)
+    start = np.asarray(current_points, np.float64).reshape(-1, 2)
+    H = plane_warp(reference_points, start, config.warp_threshold)
     if H is not None:
         h, w = current.shape
         reference = cv2.warpPerspective(reference, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         reference_points = warp_points(reference_points, H)
+    moved, confirmed = _lucas_kanade(reference, current, reference_points, start, config.window)
+    confirmed &= np.linalg.norm(moved - start, axis=1) < config.max_move
+    confirmed &= in_image(moved, current.shape)
+    return moved, confirmed
+
+
+def _lucas_kanade(
+    image: np.ndarray, other: np.ndarray, points: np.ndarray, start: np.ndarray, window: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where Lucas-Kanade (one level, ``window`` px) aligns the patches of ``image`` around ``points`` (K, 2)
+    in ``other``, starting from ``start`` (K, 2): positions (K, 2) float64 and a mask (K,) of those it
+    converged on."""
     moved, status, _ = cv2.calcOpticalFlowPyrLK(
-        reference,
-        current,
-        reference_points.astype(np.float32).reshape(-1, 1, 2),
-        start.copy(),
-        winSize=(config.window, config.window),
+        image,
+        other,
+        np.asarray(points, np.float32).reshape(-1, 1, 2),
+        np.asarray(start, np.float32).reshape(-1, 1, 2).copy(),
+        winSize=(window, window),
         maxLevel=0,
         criteria=LK_CRITERIA,
         flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
     )
     moved = moved.reshape(-1, 2).astype(np.float64)
-    confirmed = (status.ravel() == 1) & np.all(np.isfinite(moved), axis=1)
-    confirmed &= np.linalg.norm(moved - start.reshape(-1, 2), axis=1) < config.max_move
-    confirmed &= in_image(moved, current.shape)
-    return moved, confirmed
+    return moved, (status.ravel() == 1) & np.all(np.isfinite(moved), axis=1)

@@ -22,3 +22,13 @@ def test_shift_repeatability_example_scores_a_whole_cell_shift_as_no_shift(capsy
     assert [row[0] for row in rows] == ["MagicPointS-HA", "Harris"]
     for row in rows:  # no shift repeats every point in place; a whole cell moves the grid with the image
         assert float(row[1]) == 1.0 and float(row[3]) > 0.85, row
+
+
+def test_subpixel_precision_example_finds_parabola_labels_follow_a_sub_pixel_shift_closer(capsys, monkeypatch):
+    monkeypatch.setattr("sys.argv", ["subpixel_precision.py", "--views", "3"])  # the built-in validation photographs
+    runpy.run_path(str(EXAMPLES / "subpixel_precision.py"), run_name="__main__")
+    rows = {line.split()[0]: line.split() for line in capsys.readouterr().out.splitlines()[2:]}
+    assert sorted(rows) == ["centroid", "none", "parabola"]
+    label_mean = {refine: float(row[1]) for refine, row in rows.items()}
+    assert label_mean["parabola"] < label_mean["none"], label_mean
+    assert all(int(row[4].strip("()")) > 0 and int(row[8].strip("()")) > 0 for row in rows.values()), rows

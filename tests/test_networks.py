@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -358,6 +360,27 @@ def test_polish_aligns_pairs_through_a_contrast_change_and_drops_the_ones_it_can
     assert np.median(errors) < 0.1 < 0.3 < np.median(before) and errors.max() < 0.25
     empty, none = polish(reference, current, np.zeros((0, 2)), np.zeros((0, 2)))
     assert empty.shape == (0, 2) and none.shape == (0,)
+
+
+def test_polish_drops_pairs_that_do_not_align_back_to_their_partner():
+    def texture(seed: int) -> np.ndarray:
+        noise = np.random.default_rng(seed).uniform(0, 255, (120, 160)).astype(np.float32)
+        return cv2.normalize(cv2.GaussianBlur(noise, (0, 0), 2.0), None, 0, 255, cv2.NORM_MINMAX)
+
+    reference, shift = texture(0), np.array([0.6, -0.4])
+    move = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+    current = cv2.warpAffine(reference, move, (160, 120), flags=cv2.INTER_CUBIC)
+    current[:, 80:] = texture(1)[:, 80:]  # the right half now shows something else: an occluder, a wrong match
+    points = np.stack(np.meshgrid(np.arange(20, 144, 8.0), np.arange(20, 104, 8.0)), -1).reshape(-1, 2)
+    start = points + shift + np.random.default_rng(4).uniform(-0.3, 0.3, points.shape)
+    occluded = points[:, 0] + shift[0] > 80 - 8  # their windows see the other texture
+    images = normalise_contrast(reference.astype(np.uint8)), normalise_contrast(current.astype(np.uint8))
+    config = PolishConfig(warp_threshold=None)
+    _, checked = polish(*images, points, start, config)
+    _, unchecked = polish(*images, points, start, replace(config, max_return=None))
+    assert unchecked[occluded].sum() >= 10  # Lucas-Kanade settles within max_move on the wrong texture ...
+    assert checked[occluded].sum() <= unchecked[occluded].sum() / 4  # ... but does not align back from there
+    assert checked[~occluded].all()
 
 
 def test_polish_warps_the_keyframe_so_that_a_rotated_and_zoomed_view_aligns():
