@@ -155,6 +155,7 @@ class Odometry:
         self.frames = 0
         self.plane_distance = config.plane_distance
         self.last_translation: np.ndarray | None = None
+        self.plane_normal_world: np.ndarray | None = None  # unit normal (3,) of the dominant plane last measured
         self.model = config.method  # "auto" until a wide-baseline pair has chosen H or E
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
@@ -174,10 +175,16 @@ class Odometry:
         tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
         pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
         p1 = tracks_i.points[pairs[:, 0]]
-        rel = relpose.estimate(p1, p2, frame_j.K, self.model, frame_j.shape, self.last_translation)
+        R_world_i = self.graph.pose(i)[:3, :3]
+        normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
+        rel = relpose.estimate(
+            p1, p2, frame_j.K, self.model, frame_j.shape, self.last_translation, previous_normal=normal
+        )
         if rel.ok and self.config.scale != "gt" and rel.model == "essential":
-            plane = relpose.homography_pose(p1, p2, frame_j.K)  # magnitude from the dominant plane
+            plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
+        if rel.ok and rel.plane_normal is not None and not rel.rotation_only:
+            self.plane_normal_world = R_world_i @ rel.plane_normal
         T = rel.T_c1_c2.copy()
         if rel.ok and not rel.rotation_only and rel.model != "static":
             norm = np.linalg.norm(T[:3, 3])

@@ -29,6 +29,8 @@ CHI2_2DOF_95 = 5.99  # ... and two (point-to-point); ORB-SLAM's model-selection 
 HOMOGRAPHY_RATIO = 0.45  # ORB-SLAM: the homography wins when R_H = S_H / (S_H + S_F) is above this
 EPIPOLAR_PX = 1.5  # a pair's Sampson distance (px) below this: the pair fits an epipolar geometry
 OFF_PLANE_MARGIN = 5  # a homography's decomposition wins outright by fitting this many more pairs off its plane
+SAME_PLANE_DEG = 20.0  # a decomposition whose normal is this close to the plane seen before is that plane ...
+PLANE_MARGIN_DEG = 15.0  # ... when the other decompositions' normals are at least this much farther from it
 
 
 @dataclass
@@ -98,6 +100,7 @@ def homography_pose(
     H: np.ndarray | None = None,
     previous_t: np.ndarray | None = None,
     inliers: np.ndarray | None = None,
+    previous_normal: np.ndarray | None = None,
 ) -> RelativePose:
     """Relative pose from a homography (estimated with MAGSAC if not given; a given one with its
     ``inliers`` (N,) among the pairs, all of them when None) and its decomposition.
@@ -106,7 +109,10 @@ def homography_pose(
     (``filterHomographyDecompByVisibleRefpoints`` on normalised points) and the plane facing camera 1.
     Two usually remain, and the plane's own points cannot tell them apart; the pairs off the plane (a
     room's other walls) can: take the solution whose epipolar geometry fits ``OFF_PLANE_MARGIN`` more of
-    them than any other, else the one whose translation agrees best with ``previous_t`` (else the first).
+    them than any other; else the one whose plane normal is the plane seen before, ``previous_normal``
+    (unit (3,) in camera 1; within ``SAME_PLANE_DEG`` of it and ``PLANE_MARGIN_DEG`` closer than the
+    others: a wall does not turn, a path does); else the one whose translation agrees best with
+    ``previous_t`` (else the first).
     """
     if H is None:
         H, mask = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
@@ -131,6 +137,9 @@ def homography_pose(
         candidates.sort(key=lambda i: fits[i], reverse=True)
         if fits[candidates[0]] - fits[candidates[1]] >= OFF_PLANE_MARGIN:
             candidates = candidates[:1]
+    if previous_normal is not None and not rotation_only and len(candidates) > 1:
+        same = _same_plane([normals[i].ravel() for i in candidates], previous_normal)
+        candidates = [candidates[same]] if same is not None else candidates
     if previous_t is not None and not rotation_only:
         # X_2 = R X_1 + t: camera 2's centre in frame 1 is -R^T t; compare directions
         def agreement(i):
@@ -147,6 +156,16 @@ def homography_pose(
         normals[best].ravel(),
         float(np.linalg.norm(translations[best])),
     )
+
+
+def _same_plane(normals: list[np.ndarray], previous: np.ndarray) -> int | None:
+    """Index of the one normal (unit (3,)) within ``SAME_PLANE_DEG`` of ``previous`` and ``PLANE_MARGIN_DEG``
+    closer to it than any other; None if there is no such clear choice."""
+    angles = np.degrees(np.arccos(np.clip([n @ previous / np.linalg.norm(previous) for n in normals], -1, 1)))
+    order = np.argsort(angles)
+    if angles[order[0]] <= SAME_PLANE_DEG and angles[order[1]] - angles[order[0]] >= PLANE_MARGIN_DEG:
+        return int(order[0])
+    return None
 
 
 def _off_plane_fits(R: np.ndarray, t: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> int:
@@ -261,8 +280,10 @@ def estimate(
     size: tuple[int, int] = (120, 160),
     previous_t: np.ndarray | None = None,
     sigma: float = 1.0,
+    previous_normal: np.ndarray | None = None,
 ) -> RelativePose:
-    """Relative pose of camera 2 in camera 1 from matched pixels p1, p2 (N, 2).
+    """Relative pose of camera 2 in camera 1 from matched pixels p1, p2 (N, 2); ``previous_t`` and
+    ``previous_normal`` (camera 1) choose between a homography's decompositions (``homography_pose``).
 
     Degenerate cases never raise, they give model "failed" with a ``reason``: a singular K, non-finite
     points, fewer than ``MIN_MATCHES`` distinct matches, collinear points (``MIN_SPREAD_PX``), or a model
@@ -280,7 +301,7 @@ def estimate(
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < STATIC_FLOW_PX:
         return RelativePose(np.eye(4), "static", np.ones(len(p1), bool), reason="no motion")
     try:
-        pose = _estimate(p1, p2, K, method, size, previous_t, sigma)
+        pose = _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal)
     except cv2.error as error:  # USAC asserts on some degenerate samples instead of failing softly
         return _failed(len(p1), f"OpenCV could not fit a model: {str(error).strip().splitlines()[-1]}")
     if pose.ok and pose.inlier_ratio < MIN_INLIER_RATIO:
@@ -306,17 +327,17 @@ def _degenerate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> str:
     return ""
 
 
-def _estimate(p1, p2, K, method, size, previous_t, sigma) -> RelativePose:
+def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> RelativePose:
     if method == "pycolmap":
         return pycolmap_pose(p1, p2, K, size)
     if method == "homography":
-        return homography_pose(p1, p2, K, previous_t=previous_t)
+        return homography_pose(p1, p2, K, previous_t=previous_t, previous_normal=previous_normal)
     if method == "essential":
         return essential_pose(p1, p2, K)
     model, H, inliers_h = select_model(p1, p2, sigma)
     if model == "essential":
         return essential_pose(p1, p2, K)
-    return homography_pose(p1, p2, K, H, previous_t, inliers_h)
+    return homography_pose(p1, p2, K, H, previous_t, inliers_h, previous_normal)
 
 
 def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:

@@ -25,13 +25,13 @@ deepslam eval pipeline --out docs/eval/pipeline_lighting --jobs "$JOBS" --trajec
 deepslam eval pipeline --out docs/eval/pipeline_paths --jobs "$JOBS" --trajectories figure8 line random --lighting 0
 deepslam eval pipeline --out docs/eval/pipeline_paths_lighting --jobs "$JOBS" --trajectories figure8 line random \
   --lighting 0.3
-deepslam eval pipeline --out docs/eval/pipeline_S-HA --jobs "$JOBS" --trajectories circle --lighting 0 \
-  --frontends magic --detector S-HA
+deepslam eval pipeline --out docs/eval/pipeline_S --jobs "$JOBS" --trajectories circle --lighting 0 \
+  --frontends magic --detector S
 # timings, one process at a time
 deepslam bench detector --out docs/eval
 deepslam bench warp --out docs/eval
 deepslam bench pipeline --out docs/eval
-deepslam bench pipeline --out docs/eval/bench_S-HA --detector S-HA
+deepslam bench pipeline --out docs/eval/bench_S --detector S
 deepslam bench pipeline --out docs/eval/bench_long --frames 5000
 # speed-ups on this machine: a sweep in one process and in two, and MagicPoint S training on one rank and two
 SWEEP="deepslam eval pipeline --trajectories circle --lighting 0 --noise 0 --worlds plane --seeds 6 -q"

@@ -301,18 +301,19 @@ class OracleTracker(Tracker):
 class TrackerConfig:
     """A front-end and its options. The magic front-end runs MagicPoint at the evaluation threshold 0.001
     with at most 150 points (the oracle's budget), then MagicWarp refined by snapping, and confirms and
-    polishes the pairs each pose is measured from; its detector is one of ``DETECTOR_PRESETS`` (S topped
-    up by S-HA on sparse frames). Every documented field is a ``deepslam run`` option."""
+    polishes the pairs each pose is measured from; its detector is one of ``DETECTOR_PRESETS`` (S-HA in
+    one pass by default; S is topped up by S-HA on sparse frames). Every documented field is a ``deepslam run``
+    option."""
 
     frontend: Frontend = field(
         default="magic",
         metadata={"help": "magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections"},
     )
     detector: Literal["S", "S-HA"] = field(
-        default="S",
+        default="S-HA",
         metadata={
-            "help": "MagicPoint of the magic front-end: S (Synthetic Shapes only; on the image enlarged 2x with "
-            "two grid shifts) or S-HA (adapted to real photographs; one pass)"
+            "help": "MagicPoint of the magic front-end: S-HA (adapted to real photographs; one pass) or S "
+            "(Synthetic Shapes only; on the image enlarged 2x with two grid shifts, topped up by S-HA)"
         },
     )
     detector_scale: Literal[1, 2] | None = field(

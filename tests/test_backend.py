@@ -73,6 +73,23 @@ def test_homography_pose_takes_the_decomposition_the_points_off_its_plane_agree_
         assert _errors(result.T_c1_c2, T_c1_c2)[1] < 1
 
 
+@pytest.mark.parametrize("translation", [[-0.2, 0.027, -0.11], [-0.033, -0.084, 0.145]])
+def test_homography_pose_keeps_the_plane_seen_before_when_the_path_turns(rng, translation):
+    T_c1_c2 = pose(np.array([0.01, -0.02, 0.03]), np.array(translation))
+    wall = np.c_[rng.uniform(-2, 2, (100, 2)), np.full(100, 4.0)]  # a wall facing camera 1: n = (0, 0, 1)
+    p1, p2 = project(wall, K)[0], project(transform(invert(T_c1_c2), wall), K)[0]
+    _, rotations, translations, normals = cv2.decomposeHomographyMat(cv2.findHomography(p1, p2)[0], K)
+    wrong = max(range(len(rotations)), key=lambda i: normals[i][2, 0] > 0 and abs(normals[i][2, 0]) < 0.99)
+    turned = -rotations[wrong].T @ translations[wrong].ravel()  # the motion before points to the other solution
+    fooled = relpose.estimate(p1, p2, K, "homography", previous_t=turned)
+    kept = relpose.estimate(p1, p2, K, "homography", previous_t=turned, previous_normal=np.array([0.0, 0.0, 1.0]))
+    another = relpose.estimate(p1, p2, K, "homography", previous_t=turned, previous_normal=np.array([1.0, 0.0, 0.0]))
+    assert _errors(fooled.T_c1_c2, T_c1_c2)[1] > 10  # the wall's points alone cannot tell
+    assert _errors(kept.T_c1_c2, T_c1_c2)[1] < 1
+    np.testing.assert_allclose(kept.plane_normal, [0, 0, 1], atol=1e-3)
+    assert _errors(another.T_c1_c2, T_c1_c2)[1] > 10  # a normal far from both: the motion before decides
+
+
 def test_pycolmap_agrees_with_opencv(rng):
     p1, p2 = _views(rng, False)
     ours, theirs = relpose.estimate(p1, p2, K, "essential"), relpose.estimate(p1, p2, K, "pycolmap")
