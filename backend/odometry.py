@@ -20,7 +20,6 @@ import time
 from dataclasses import dataclass, field, replace
 from typing import Literal, get_args
 
-import cv2
 import numpy as np
 
 from deepslam.backend import relpose
@@ -50,10 +49,10 @@ class OdometryConfig:
     """Every documented field is an option of ``deepslam run`` and ``deepslam replay``."""
 
     method: relpose.Method = field(
-        default="homography",
+        default="auto",
         metadata={
-            "help": "relative pose: homography (dominant plane; most accurate on these worlds), auto (ORB-SLAM "
-            "H/F selection), essential, or pycolmap"
+            "help": "relative pose: auto (for each pair of frames, ORB-SLAM's scores choose a homography, the "
+            "dominant plane, or an essential matrix), homography, essential, or pycolmap"
         },
     )
     scale: Scale = field(
@@ -156,7 +155,6 @@ class Odometry:
         self.plane_distance = config.plane_distance
         self.last_translation: np.ndarray | None = None
         self.plane_normal_world: np.ndarray | None = None  # unit normal (3,) of the dominant plane last measured
-        self.model = config.method  # "auto" until a wide-baseline pair has chosen H or E
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
 
@@ -178,7 +176,7 @@ class Odometry:
         R_world_i = self.graph.pose(i)[:3, :3]
         normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
         rel = relpose.estimate(
-            p1, p2, frame_j.K, self.model, frame_j.shape, self.last_translation, previous_normal=normal
+            p1, p2, frame_j.K, self.config.method, frame_j.shape, self.last_translation, previous_normal=normal
         )
         if rel.ok and self.config.scale != "gt" and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
@@ -197,18 +195,6 @@ class Odometry:
             distance = self.plane_distance - float(rel.plane_normal @ T[:3, 3])
             if distance > 1e-3:
                 self.plane_distance = distance
-
-    def _choose_model(self, i: int, j: int, pairs: np.ndarray) -> None:
-        """For method "auto": pick H or E on the pair (i, j), the widest baseline at hand."""
-        if self.config.method != "auto" or len(pairs) < relpose.MIN_MATCHES:
-            return
-        a, b = self.history[i][1].points[pairs[:, 0]], self.history[j][1].points[pairs[:, 1]]
-        if np.median(np.linalg.norm(b - a, axis=1)) < self.config.keyframe_parallax:
-            return
-        try:
-            self.model = relpose.select_model(a, b)[0]
-        except cv2.error:  # degenerate sample: keep the previous choice
-            pass
 
     def process(self, frame: InputFrame) -> FrameResult:
         """Track the frame, measure its pose against the current keyframe, add it to the graph, update."""
@@ -233,8 +219,6 @@ class Odometry:
                 keyframe=True,
             )
         kf = self._reference(k, tracks)
-        pairs = shared_tracks(self.history[kf][1], tracks)
-        self._choose_model(kf, k, pairs)
         rel, T, pairs, measured_points = self._measure(kf, k)
         parallax = self._parallax(kf, k, pairs)
         measured = time.perf_counter()

@@ -2,7 +2,8 @@
 
 Models: a homography (planar scenes; decomposed with ``cv2.decomposeHomographyMat`` and the
 physically valid solution chosen) or an essential matrix (``cv2.recoverPose``); "auto" scores both
-as ORB-SLAM does and takes the homography when R_H = S_H / (S_H + S_F) > 0.45.
+as ORB-SLAM does for every pair of frames, takes the homography when R_H = S_H / (S_H + S_F) > 0.45, and
+else the essential matrix if its pose explains clearly more pairs than the homography.
 
 The result ``T_c1_c2`` is the pose of camera 2 in camera 1's frame (X_1 = T_c1_c2 X_2), the
 between-measurement of a pose graph. Monocular translation has no scale: it is a unit vector,
@@ -27,6 +28,7 @@ ROTATION_ONLY_PX = 0.5  # E: if K R K^-1 alone maps p1 onto p2 this closely (med
 CHI2_1DOF_95 = 3.84  # chi-square 95% quantiles: one degree of freedom (point-to-line) ...
 CHI2_2DOF_95 = 5.99  # ... and two (point-to-point); ORB-SLAM's model-selection thresholds
 HOMOGRAPHY_RATIO = 0.45  # ORB-SLAM: the homography wins when R_H = S_H / (S_H + S_F) is above this
+ESSENTIAL_MARGIN = 0.1  # "auto" keeps E only if its pose explains this share of the pairs more than H does
 EPIPOLAR_PX = 1.5  # a pair's Sampson distance (px) below this: the pair fits an epipolar geometry
 OFF_PLANE_MARGIN = 5  # a homography's decomposition wins outright by fitting this many more pairs off its plane
 SAME_PLANE_DEG = 20.0  # a decomposition whose normal is this close to the plane seen before is that plane ...
@@ -335,17 +337,21 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
     if method == "essential":
         return essential_pose(p1, p2, K)
     model, H, inliers_h = select_model(p1, p2, sigma)
+    planar = homography_pose(p1, p2, K, H, previous_t, inliers_h, previous_normal)
     if model == "essential":
-        return essential_pose(p1, p2, K)
-    return homography_pose(p1, p2, K, H, previous_t, inliers_h, previous_normal)
+        general = essential_pose(p1, p2, K)
+        if general.ok and general.inliers.sum() >= planar.inliers.sum() + ESSENTIAL_MARGIN * len(p1):
+            return general
+    return planar
 
 
 def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:
     """ORB-SLAM's choice between a homography and a fundamental matrix: "homography" when
     R_H = S_H / (S_H + S_F) > ``HOMOGRAPHY_RATIO``. Returns (model, H or None, H inlier mask (N,)).
 
-    Between frames with little parallax both models fit and R_H does not discriminate: call it on
-    the widest baseline at hand (the odometry uses its keyframe pairs)."""
+    Between frames with little parallax both models fit and R_H does not discriminate, and a plane seen
+    over a short baseline makes E nearly degenerate: "auto" therefore keeps E only when its pose explains
+    ``ESSENTIAL_MARGIN`` more of the pairs than the homography does."""
     H, _ = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
     if H is None:
         return "essential", None, np.zeros(len(p1), bool)

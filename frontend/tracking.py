@@ -342,7 +342,7 @@ class TrackerConfig:
         default=None,
         metadata={
             "help": "report a track the detector misses for up to 20 frames, carried by MagicWarp's homography "
-            "and aligned to the frame it was last detected in (default: only with --method homography)"
+            "and aligned to the frame it was last detected in (default: with --method auto or homography)"
         },
     )
     ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})

@@ -37,12 +37,21 @@ def _errors(T, T_true):
 
 @pytest.mark.parametrize(
     "method, planar",
-    [("homography", True), ("essential", False), ("auto", True), ("pycolmap", True), ("pycolmap", False)],
+    [
+        ("homography", True),
+        ("essential", False),
+        ("auto", True),
+        ("auto", False),
+        ("pycolmap", True),
+        ("pycolmap", False),
+    ],
 )
 def test_relative_pose_recovers_known_motion(rng, method, planar):
     p1, p2 = _views(rng, planar)
     result = relpose.estimate(p1, p2, K, method)
     assert result.ok
+    if method == "auto":  # a plane: the homography; points at many depths: the essential matrix
+        assert result.model == ("homography" if planar else "essential")
     rotation_error, direction_error = _errors(result.T_c1_c2, T_TRUE)
     assert rotation_error < 0.5 and direction_error < 5
 
@@ -194,9 +203,14 @@ def test_drift_metrics(rng):
 def test_planar_world_with_oracle_recovers_the_trajectory():
     scenario = Scenario(ScenarioConfig(world="plane", frames=30))
     odometry = Odometry(OracleTracker(noise_px=0.0), OdometryConfig(scale="gt"))
-    output = run_frames(simulated_frames(scenario), odometry, progress=False)
+    models = []
+
+    def keep_model(frame, result, diagnostics):
+        models.append(result.relative.model if result.relative else None)
+
+    output = run_frames(simulated_frames(scenario), odometry, keep_model, progress=False)
     assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
-    assert odometry.model == "homography"
+    assert models[0] is None and set(models[1:]) == {"homography"}  # "auto" sees the plane in every pair
     # exact projections: every track error against the depth buffer is zero, nothing is lost
     assert len(output.track_errors) > 100 and np.abs(output.track_errors).max() < 1e-3
     assert len(output.pair_errors) > 100 and np.abs(output.pair_errors).max() < 1e-3  # keyframe to frame, too
@@ -268,9 +282,10 @@ def test_make_tracker_sets_the_oracle_pixel_noise():
     assert 1.5 < np.median(error) < 3.5  # a 2-D Gaussian of sigma 2 has a median radius of 2.35
 
 
-def test_magic_tracks_are_carried_only_for_homography_relative_poses():
+def test_magic_tracks_are_carried_only_where_relative_poses_may_come_from_a_homography():
     for method, options, carried in [
         ("homography", {}, True),
+        ("auto", {}, True),
         ("essential", {}, False),
         ("homography", {"carry": False}, False),
     ]:

@@ -21,8 +21,8 @@ from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 def _tracker(config: TrackerConfig, odometry: OdometryConfig, seed: int = 0) -> Tracker:
     """The front-end of ``config``; carried magic tracks sit where the dominant plane's homography puts
-    them, so they are on by default only when relative poses come from that homography too."""
-    return make_tracker(config, seed, carry_default=odometry.method == "homography")
+    them, so they are on by default only when relative poses may come from that homography too."""
+    return make_tracker(config, seed, carry_default=odometry.method in ("homography", "auto"))
 
 
 def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
