@@ -272,6 +272,19 @@ def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apa
     assert [p.name for p in save_plots({"rows": rows}, tmp_path)] == ["pipeline_ate_vs_noise.png"]
 
 
+def test_sweep_measures_with_the_relative_pose_method_it_is_given():
+    def ates(method):
+        config = SweepConfig(
+            worlds=("plane",), trajectories=("circle",), frontends=("oracle",), noise=(0.0,), lighting=(0.0,),
+            frames=8, seeds=2, method=method,
+        )  # fmt: skip
+        return [run["ate_se3"] for run in pipeline_matrix(config, progress=False)[0]["runs"]]
+
+    assert SweepConfig().method == OdometryConfig().method  # the odometry's default unless told
+    planar, general = ates("homography"), ates("essential")
+    assert max(planar) < 0.02 and min(general) > 3 * max(planar)  # E is degenerate on one plane
+
+
 def test_make_tracker_sets_the_oracle_pixel_noise():
     truth = Truth(np.arange(50), np.random.default_rng(0).uniform(0, 100, (50, 2)))
     image = np.zeros((120, 160), np.uint8)

@@ -13,6 +13,7 @@ import numpy as np
 
 from deepslam.backend.evaluation.runs import simulate
 from deepslam.backend.odometry import OdometryConfig, Scale
+from deepslam.backend.relpose import Method
 from deepslam.frontend.tracking import Frontend, TrackerConfig
 from deepslam.parallel import Workers, parallel_map
 from deepslam.sim import trajectories
@@ -52,6 +53,12 @@ class SweepConfig:
         default="gt",
         metadata={"help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the plane"},
     )
+    method: Method = field(
+        default=OdometryConfig().method,
+        metadata={
+            "help": "relative pose of the odometry, as deepslam run --method: auto, homography, essential, pycolmap"
+        },
+    )
 
     def cells(self) -> list[tuple]:
         """(world, trajectory, noise, lighting, front-end) of every row, in table order."""
@@ -78,7 +85,10 @@ def run_cell(piece: tuple) -> dict:
         world=world, trajectory=path, frames=config.frames, noise=noise, lighting=light, seed=seed
     )
     result = simulate(
-        scenario, replace(tracker_config, frontend=frontend), OdometryConfig(scale=config.scale), progress=False
+        scenario,
+        replace(tracker_config, frontend=frontend),
+        OdometryConfig(scale=config.scale, method=config.method),
+        progress=False,
     )
     built = result["world"]
     figures = result["drift"]
