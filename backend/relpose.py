@@ -33,6 +33,7 @@ EPIPOLAR_PX = 1.5  # a pair's Sampson distance (px) below this: the pair fits an
 OFF_PLANE_MARGIN = 5  # a homography's decomposition wins outright by fitting this many more pairs off its plane
 SAME_PLANE_DEG = 20.0  # a decomposition whose normal is this close to the plane seen before is that plane ...
 PLANE_MARGIN_DEG = 15.0  # ... when the other decompositions' normals are at least this much farther from it
+VISIBLE_SHARE = 0.9  # a decomposition is valid if this share of its plane's points is in front of both cameras
 
 
 @dataclass
@@ -107,14 +108,14 @@ def homography_pose(
     """Relative pose from a homography (estimated with MAGSAC if not given; a given one with its
     ``inliers`` (N,) among the pairs, all of them when None) and its decomposition.
 
-    Of the up to four solutions, keep those with the reference points in front of both cameras
-    (``filterHomographyDecompByVisibleRefpoints`` on normalised points) and the plane facing camera 1.
+    Of the up to four solutions, keep those with ``VISIBLE_SHARE`` of the inliers in front of both cameras
+    (``_visible_shares``: a few inliers may lie off the plane) and the plane facing camera 1.
     Two usually remain, and the plane's own points cannot tell them apart; the pairs off the plane (a
     room's other walls) can: take the solution whose epipolar geometry fits ``OFF_PLANE_MARGIN`` more of
     them than any other; else the one whose plane normal is the plane seen before, ``previous_normal``
     (unit (3,) in camera 1; within ``SAME_PLANE_DEG`` of it and ``PLANE_MARGIN_DEG`` closer than the
-    others: a wall does not turn, a path does); else the one whose translation agrees best with
-    ``previous_t`` (else the first).
+    others: a wall does not turn, a path does); else, of those with the most inliers in front of both
+    cameras, the one whose translation agrees best with ``previous_t`` (else the first).
     """
     if H is None:
         H, mask = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
@@ -124,11 +125,8 @@ def homography_pose(
     elif inliers is None:
         inliers = np.ones(len(p1), bool)
     count, rotations, translations, normals = cv2.decomposeHomographyMat(H, K)
-    n1, n2 = _normalised(p1[inliers], K), _normalised(p2[inliers], K)
-    good = cv2.filterHomographyDecompByVisibleRefpoints(
-        rotations, normals, n1.reshape(-1, 1, 2).astype(np.float32), n2.reshape(-1, 1, 2).astype(np.float32)
-    )
-    candidates = [int(i) for i in np.ravel(good)] if good is not None else list(range(count))
+    visible = _visible_shares(rotations, normals, _normalised(p1[inliers], K), _normalised(p2[inliers], K))
+    candidates = [i for i in range(count) if visible[i] >= VISIBLE_SHARE] or list(range(count))
     # OpenCV's normal satisfies n . X_1 = d > 0 on the plane: a plane in front of camera 1 has n_z > 0
     candidates = [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
     magnitudes = [np.linalg.norm(translations[i]) for i in candidates]
@@ -142,6 +140,8 @@ def homography_pose(
     if previous_normal is not None and not rotation_only and len(candidates) > 1:
         same = _same_plane([normals[i].ravel() for i in candidates], previous_normal)
         candidates = [candidates[same]] if same is not None else candidates
+    most = max(visible[i] for i in candidates)  # undecided: the solutions with the most points in front
+    candidates = [i for i in candidates if visible[i] == most]
     if previous_t is not None and not rotation_only:
         # X_2 = R X_1 + t: camera 2's centre in frame 1 is -R^T t; compare directions
         def agreement(i):
@@ -158,6 +158,22 @@ def homography_pose(
         normals[best].ravel(),
         float(np.linalg.norm(translations[best])),
     )
+
+
+def _visible_shares(
+    rotations: tuple[np.ndarray, ...], normals: tuple[np.ndarray, ...], n1: np.ndarray, n2: np.ndarray
+) -> list[float]:
+    """For each decomposition (R, n) of a homography, the share of its inliers, at normalised points n1 -> n2
+    (K, 2), that lie in front of both cameras on its plane: n . m1 > 0 and (R n) . m2 > 0. OpenCV's
+    ``filterHomographyDecompByVisibleRefpoints`` asks this of every point, so that one pair off the plane
+    that still fits the homography over a short baseline (a room's other wall) can rule out the true
+    solution; a share tolerates it."""
+    m1, m2 = np.c_[n1, np.ones(len(n1))], np.c_[n2, np.ones(len(n2))]
+    shares = []
+    for R, n in zip(rotations, normals, strict=True):
+        in_front = (m1 @ n.ravel() > 0) & (m2 @ (R @ n.ravel()) > 0)
+        shares.append(float(in_front.mean()) if len(in_front) else 1.0)
+    return shares
 
 
 def _same_plane(normals: list[np.ndarray], previous: np.ndarray) -> int | None:

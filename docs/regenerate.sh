@@ -32,7 +32,7 @@ deepslam bench detector --out docs/eval
 deepslam bench warp --out docs/eval
 deepslam bench pipeline --out docs/eval
 deepslam bench pipeline --out docs/eval/bench_S --detector S
-deepslam bench pipeline --out docs/eval/bench_long --frames 5000
+deepslam bench pipeline --out docs/eval/bench_long --frames 5000 --rounds 1
 # speed-ups on this machine: a sweep in one process and in two, and MagicPoint S training on one rank and two
 SWEEP="deepslam eval pipeline --trajectories circle --lighting 0 --noise 0 --worlds plane --seeds 6 -q"
 $TIME docs/eval/seconds_sweep_jobs1.txt $SWEEP --out out/speedup1

@@ -166,10 +166,11 @@ class MagicTracker(Tracker):
             pairs = match(self.live, points, np.eye(3), self.max_dist)
             if self.ransac:
                 pairs = _ransac_filter(pairs, self.live, points)
+        matched = time.perf_counter()
         self.timings_ms = {
             "magicpoint": 1e3 * (detected - started),
             "magicwarp": 1e3 * (warped - detected),
-            "match": 1e3 * (time.perf_counter() - warped),
+            "match": 1e3 * (matched - warped),
         }
         ids = np.full(len(points), -1, np.int64)
         ids[pairs[:, 1]] = self.live_ids[pairs[:, 0]]
@@ -183,6 +184,7 @@ class MagicTracker(Tracker):
         reported = keep & self.carry & in_image(self.live, image.shape, margin=0.5)
         if appearance is not None:
             reported &= self._align_carried(reported, appearance)
+            self.timings_ms["polish_carried"] = 1e3 * (time.perf_counter() - matched)
         reported &= np.cumsum(reported) <= self.budget - continued  # live tracks are ordered by last detection
         shown = ~fresh | (np.cumsum(fresh) <= self.budget - continued - int(reported.sum()))
         self.previous = Tracks(

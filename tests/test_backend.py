@@ -3,12 +3,13 @@ import numpy as np
 import pytest
 
 from deepslam.backend import drift, relpose
+from deepslam.backend.evaluation.bench import bench_pipeline
 from deepslam.backend.evaluation.runs import run_frames, simulate, simulated_frames
 from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix
 from deepslam.backend.graph import GraphConfig, PoseGraph
 from deepslam.backend.odometry import Odometry, OdometryConfig
 from deepslam.frontend.tracking import OracleTracker, TrackerConfig, Truth, make_tracker
-from deepslam.geometry import path_length
+from deepslam.geometry import in_image, path_length
 from deepslam.sim.camera import intrinsics, invert, pose, project, transform
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -97,6 +98,27 @@ def test_homography_pose_keeps_the_plane_seen_before_when_the_path_turns(rng, tr
     assert _errors(kept.T_c1_c2, T_c1_c2)[1] < 1
     np.testing.assert_allclose(kept.plane_normal, [0, 0, 1], atol=1e-3)
     assert _errors(another.T_c1_c2, T_c1_c2)[1] > 10  # a normal far from both: the motion before decides
+
+
+def test_homography_pose_keeps_the_true_solution_when_a_few_inliers_lie_off_its_plane(rng):
+    T_c1_c2 = pose(np.array([0.0, 0.01, 0.0]), np.array([0.05, 0.0, 0.02]))
+    down = pose(np.array([0.3, 0.0, 0.0]), np.zeros(3))[:3, :3]  # camera 1 looks 17 deg down
+    floor = np.c_[rng.uniform(-1, 1, 95), np.full(95, 1.0), rng.uniform(3, 8, 95)]  # level: 1 m below the camera
+    far = np.c_[rng.uniform(-5, 5, 5), rng.uniform(-4, -1.5, 5), np.full(5, 40.0)]  # above the horizon, barely moving
+    points = np.vstack([floor, far]) @ down.T
+    normal = down @ [0.0, 1.0, 0.0]
+    p1, p2 = project(points, K)[0], project(transform(invert(T_c1_c2), points), K)[0]
+    assert in_image(p1, (120, 160)).all() and in_image(p2, (120, 160)).all()
+    H = cv2.findHomography(p1[:95], p2[:95])[0]  # the floor's; the far points fit it within a pixel
+    assert np.abs(cv2.perspectiveTransform(p1[95:, None], H)[:, 0] - p2[95:]).max() < 1.0
+    _, rotations, _, normals = cv2.decomposeHomographyMat(H, K)
+    true = [i for i in range(len(normals)) if normals[i].ravel() @ normal > 0.99]
+    m1, m2 = (cv2.undistortPoints(p[:, None], K, None).astype(np.float32) for p in (p1, p2))
+    opencv = np.ravel(cv2.filterHomographyDecompByVisibleRefpoints(rotations, normals, m1, m2))
+    assert true and not set(true) & set(opencv)  # OpenCV asks it of every point: the far ones rule it out
+    result = relpose.homography_pose(p1, p2, K, H, inliers=np.ones(100, bool), previous_normal=normal)
+    assert _errors(result.T_c1_c2, T_c1_c2)[1] < 2
+    np.testing.assert_allclose(result.plane_normal, normal, atol=0.02)
 
 
 def test_pycolmap_agrees_with_opencv(rng):
@@ -330,3 +352,12 @@ def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
             np.testing.assert_allclose(reported, result.measured_points - (0.25 if result.keyframe else 0.0))
             keyframes += result.keyframe
     assert keyframes >= 1
+
+
+def test_pipeline_bench_reports_the_median_round_and_the_spread_of_rounds():
+    timings = bench_pipeline(6, tracker_config=TrackerConfig(frontend="oracle"), rounds=3)
+    assert timings["fps_slowest_round"] <= timings["fps"] <= timings["fps_fastest_round"]
+    assert timings["fps"] == pytest.approx(1e3 / timings["per_frame_total"])
+    assert timings["odometry.graph"] > 0 and "memory_mb@end" not in timings  # short runs report no growth
+    with pytest.raises(ValueError, match="at least 1 round"):
+        bench_pipeline(6, rounds=0)

@@ -63,6 +63,7 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
         (["eval", "pipeline", "--seeds", "0", "--out", folder], "argument --seeds: must lie in [1, inf]"),
         (["bench", "warp", "--repeats", "0"], "argument --repeats: must lie in [1, inf]"),
         (["bench", "pipeline", "--frames", "1"], "argument --frames: must lie in [2, inf]"),
+        (["bench", "pipeline", "--rounds", "0"], "argument --rounds: must lie in [1, inf]"),
         (["drift", log, "--delta", "-1"], "argument --delta: must lie in [1, inf]"),
         (["train", "magicwarp", "--batch", "0", "--out", folder], "argument --batch: must lie in [1, inf]"),
         (["train", "magicwarp", "--lr", "inf", "--out", folder], "argument --lr: must be finite"),

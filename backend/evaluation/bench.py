@@ -26,14 +26,34 @@ def resident_mb() -> float:
 
 
 def bench_pipeline(
-    frames: int = 60, seed: int = 0, tracker_config: TrackerConfig = TrackerConfig()
+    frames: int = 60, seed: int = 0, tracker_config: TrackerConfig = TrackerConfig(), rounds: int = 1
 ) -> dict[str, float]:
-    """Mean per-frame milliseconds of each stage (rendering not counted) of the front-end
-    ``tracker_config`` describes: the odometry's stages, and inside a magic front-end MagicPoint,
-    MagicWarp and matching; the marginal covariance is off (it is only for the log). Frames are rendered
-    as they go, so a long run holds one at a time. Runs longer than ``EARLY_FRAME`` frames also report
-    resident memory (MB) and the graph's milliseconds per frame (mean over ``WINDOW`` frames) at frame
-    ``EARLY_FRAME`` and at the end. Time it on one torch thread (the CLI sets it)."""
+    """Per-frame milliseconds of each stage (rendering not counted) of the front-end ``tracker_config``
+    describes: the odometry's stages, and inside a magic front-end MagicPoint, MagicWarp and matching; the
+    marginal covariance is off (it is only for the log). The run is timed ``rounds`` times, each with a
+    fresh front-end and odometry, and every stage reports the median of its per-round means, so that a
+    round slowed by other work on the machine does not decide the figure; with several rounds
+    ``fps_slowest_round`` and ``fps_fastest_round`` show the spread. Frames are rendered as they go, so a
+    long run holds one at a time. Runs longer than ``EARLY_FRAME`` frames also report resident memory (MB)
+    and the graph's milliseconds per frame (mean over ``WINDOW`` frames) at frame ``EARLY_FRAME`` and at
+    the end, of the last round. Time it on one torch thread (the CLI sets it)."""
+    if rounds < 1:
+        raise ValueError(f"the bench needs at least 1 round, got {rounds}")
+    per_round, growth = [], {}
+    for _ in range(rounds):
+        means, growth = _timed_run(frames, seed, tracker_config)
+        per_round.append(means)
+    medians = {name: float(np.median([means[name] for means in per_round])) for name in per_round[0]}
+    medians["fps"] = 1e3 / medians["per_frame_total"]
+    if rounds > 1:
+        fps = [1e3 / means["per_frame_total"] for means in per_round]
+        medians |= {"fps_slowest_round": min(fps), "fps_fastest_round": max(fps)}
+    return medians | growth
+
+
+def _timed_run(frames: int, seed: int, tracker_config: TrackerConfig) -> tuple[dict[str, float], dict[str, float]]:
+    """One timed run of ``bench_pipeline``: (mean milliseconds per frame of each stage and their total,
+    memory and graph time at frame ``EARLY_FRAME`` and at the end of a long run)."""
     tracker = make_tracker(tracker_config, seed)
     odometry = Odometry(tracker, OdometryConfig(covariance=False))
     stages: dict[str, list[float]] = {}
@@ -49,8 +69,7 @@ def bench_pipeline(
             growth[f"graph_ms@{at}"] = float(np.mean(stages["odometry.graph"][-WINDOW:]))
     means = {name: float(np.mean(values)) for name, values in stages.items()}
     means["per_frame_total"] = sum(v for k, v in means.items() if k.startswith("odometry."))
-    means["fps"] = 1e3 / means["per_frame_total"]
-    return means | growth
+    return means, growth
 
 
 def save_plots(timings: dict[str, float], out_dir) -> list:
