@@ -342,10 +342,15 @@ def test_magic_tracker_keeps_its_tracks_when_magicwarp_is_far_off():
     assert len(np.intersect1d(first.ids, second.ids)) < len(points) / 10  # MagicWarp alone loses its tracks
 
 
+def _blurred_noise(rng: np.random.Generator, sigma: float) -> np.ndarray:
+    """A float32 (120, 160) texture: uniform noise blurred by ``sigma`` px, stretched to 0-255."""
+    noise = rng.uniform(0, 255, (120, 160)).astype(np.float32)
+    return cv2.normalize(cv2.GaussianBlur(noise, (0, 0), sigma), None, 0, 255, cv2.NORM_MINMAX)
+
+
 def test_polish_aligns_pairs_through_a_contrast_change_and_drops_the_ones_it_cannot_confirm():
     rng = np.random.default_rng(3)
-    texture = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 2.0)
-    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX)
+    texture = _blurred_noise(rng, 2.0)
     shift = np.array([1.3, -0.7])
     moved = cv2.warpAffine(texture, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (160, 120), flags=cv2.INTER_CUBIC)
     reference = texture.astype(np.uint8)
@@ -363,14 +368,11 @@ def test_polish_aligns_pairs_through_a_contrast_change_and_drops_the_ones_it_can
 
 
 def test_polish_drops_pairs_that_do_not_align_back_to_their_partner():
-    def texture(seed: int) -> np.ndarray:
-        noise = np.random.default_rng(seed).uniform(0, 255, (120, 160)).astype(np.float32)
-        return cv2.normalize(cv2.GaussianBlur(noise, (0, 0), 2.0), None, 0, 255, cv2.NORM_MINMAX)
-
-    reference, shift = texture(0), np.array([0.6, -0.4])
+    reference, shift = _blurred_noise(np.random.default_rng(0), 2.0), np.array([0.6, -0.4])
     move = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
     current = cv2.warpAffine(reference, move, (160, 120), flags=cv2.INTER_CUBIC)
-    current[:, 80:] = texture(1)[:, 80:]  # the right half now shows something else: an occluder, a wrong match
+    other = _blurred_noise(np.random.default_rng(1), 2.0)
+    current[:, 80:] = other[:, 80:]  # the right half now shows something else: an occluder, a wrong match
     points = np.stack(np.meshgrid(np.arange(20, 144, 8.0), np.arange(20, 104, 8.0)), -1).reshape(-1, 2)
     start = points + shift + np.random.default_rng(4).uniform(-0.3, 0.3, points.shape)
     occluded = points[:, 0] + shift[0] > 80 - 8  # their windows see the other texture
@@ -385,8 +387,7 @@ def test_polish_drops_pairs_that_do_not_align_back_to_their_partner():
 
 def test_polish_warps_the_keyframe_so_that_a_rotated_and_zoomed_view_aligns():
     rng = np.random.default_rng(5)
-    texture = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 1.5)
-    reference = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    reference = _blurred_noise(rng, 1.5).astype(np.uint8)
     H = cv2.getRotationMatrix2D((80.0, 60.0), 8.0, 1.12)  # 8 degrees, 12% closer: as after a few frames
     H = np.vstack([H, [0, 0, 1]])
     current = cv2.warpPerspective(reference, H, (160, 120), flags=cv2.INTER_CUBIC)
