@@ -29,14 +29,15 @@ def bench_pipeline(
     frames: int = 60, seed: int = 0, tracker_config: TrackerConfig = TrackerConfig(), rounds: int = 5
 ) -> dict[str, float]:
     """Per-frame milliseconds of each stage (rendering not counted) of the front-end ``tracker_config``
-    describes: the odometry's stages, and inside a magic front-end MagicPoint, MagicWarp, matching and the
-    alignment of carried tracks; the marginal covariance is off (it is only for the log). The run is timed
-    ``rounds`` times, each with a fresh front-end and odometry, and every stage reports the median of its
-    per-round means, so that a round slowed by other work on the machine does not decide the figure; with
-    several rounds ``fps_slowest_round`` and ``fps_fastest_round`` show the spread. Frames are rendered as
-    they go, so a long run holds one at a time. Runs longer than ``EARLY_FRAME`` frames also report resident
-    memory (MB) and the graph's milliseconds per frame (mean over ``WINDOW`` frames) at frame ``EARLY_FRAME``
-    and at the end, of the last round. Time it on one torch thread (the CLI sets it)."""
+    describes: the odometry's stages, and inside a magic front-end MagicPoint, MagicWarp, matching and
+    ``polish_carried`` (contrast normalisation, alignment of carried tracks); the marginal covariance is off
+    (it is only for the log). The run is timed ``rounds`` times, each with a fresh front-end and odometry,
+    and every stage reports the median of its per-round means, so that a round slowed by other work on the
+    machine does not decide the figure; with several rounds ``fps_slowest_round`` and ``fps_fastest_round``
+    show the spread. Frames are rendered as they go, so a long run holds one at a time. Runs longer than
+    ``EARLY_FRAME`` frames also report resident memory (MB) and the graph's milliseconds per frame (mean over
+    ``WINDOW`` frames) at frame ``EARLY_FRAME`` and at the end, of the last round. Time it on one torch
+    thread (the CLI sets it)."""
     if rounds < 1:
         raise ValueError(f"the bench needs at least 1 round, got {rounds}")
     per_round, growth = [], {}
