@@ -398,7 +398,7 @@ def _eval_commands(commands) -> None:
             nargs="+",
             metavar="PATH",
             help="also evaluate MagicPoint from these weights files or training checkpoints, each named by its path "
-            "(one pass, sub-pixel parabola peaks, as S-HA runs)",
+            "(one pass, S-HA's own sub-pixel peaks)",
         )
     for parser in (detector, warp, real):
         parser.add_argument("--seed", type=number_type(int, 0), default=0, help="seed of the evaluation data")

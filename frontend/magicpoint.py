@@ -34,7 +34,7 @@ VARIANTS = {
     "L": MagicPointConfig((64, 64, 128, 128), 256),
     "S-HA": MagicPointConfig((8, 8, 16, 16), 32, "blur"),  # S on real photographs: homographic adaptation
 }
-INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "parabola"}}  # a variant's own extraction (model card)
+INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "smoothed"}}  # a variant's own extraction (model card)
 
 
 class MagicPointNet(nn.Module):
@@ -78,7 +78,8 @@ class MagicPoint:
     """The shipped MagicPoint, ready for inference (BatchNorm folded, eval mode).
 
     ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels), ``top_k`` and ``subpixel`` ("none",
-    "parabola" fit at each peak, or "centroid" of its 3x3 neighbourhood) set point extraction.
+    "parabola" fit at each peak, "smoothed": the parabola on the heatmap smoothed first, or "centroid" of
+    its 3x3 neighbourhood) set point extraction.
     ``grid_shifts`` 4 averages the heatmaps of the image shifted by 0 and 4 pixels in x and y against
     the 8-pixel cell grid (3-4x the time; 2: the diagonal shift only): detections then move with the
     image more faithfully (the single pass is not shift-equivariant within a cell).
@@ -126,8 +127,12 @@ class MagicPoint:
         if not path.exists():
             raise FileNotFoundError(f"no MagicPoint weights at {path}; train them with `deepslam train magicpoint`")
         config, weights = read_weights(path)
-        net = MagicPointNet(MagicPointConfig(**config))
-        net.load_state_dict(weights)
+        try:
+            net = MagicPointNet(MagicPointConfig(**config))
+            net.load_state_dict(weights)
+        except (TypeError, RuntimeError) as error:
+            reason = str(error).strip().splitlines()[0]
+            raise ValueError(f"{path} holds no MagicPoint this version can run ({reason})") from None
         return cls(net, **{**INFERENCE_DEFAULTS.get(variant, {}), **options})
 
     @torch.inference_mode()

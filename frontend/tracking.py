@@ -379,7 +379,8 @@ DETECTOR_PRESETS: dict[str, dict] = {
     "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "parabola"},  # one pass
 }
 """How the magic front-end runs each MagicPoint; ``TrackerConfig.detector_scale`` overrides ``upsample``
-(S at scale 1 then averages four grid shifts)."""
+(S at scale 1 then averages four grid shifts). S-HA keeps the plain parabola here: its own default, the
+parabola on the smoothed heatmap, localises better alone but drew end to end (S-HA model card)."""
 
 
 @dataclass

@@ -28,7 +28,7 @@ def test_subpixel_precision_example_finds_parabola_labels_follow_a_sub_pixel_shi
     monkeypatch.setattr("sys.argv", ["subpixel_precision.py", "--views", "3"])  # the built-in validation photographs
     runpy.run_path(str(EXAMPLES / "subpixel_precision.py"), run_name="__main__")
     rows = {line.split()[0]: line.split() for line in capsys.readouterr().out.splitlines()[2:]}
-    assert sorted(rows) == ["centroid", "none", "parabola"]
+    assert sorted(rows) == ["centroid", "none", "parabola", "smoothed"]
     label_mean = {refine: float(row[1]) for refine, row in rows.items()}
     assert label_mean["parabola"] < label_mean["none"], label_mean
     assert all(int(row[4].strip("()")) > 0 and int(row[8].strip("()")) > 0 for row in rows.values()), rows

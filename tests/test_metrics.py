@@ -106,6 +106,9 @@ def test_point_extraction_nms_border_top_k_and_subpixel():
     bilinear[20, 10:12] = [0.6, 0.2]  # a peak at x = 10.25 spread over two pixels, as a soft label is
     bilinear[21, 10] = 0.2  # and at y = 20.25
     np.testing.assert_allclose(extract_points(bilinear, 0.1, refine="centroid")[0, :2], [10.2, 20.2], atol=1e-6)
+    sharp = np.exp(-((xx - 20.4) ** 2 + (yy - 12.0) ** 2) / (2 * 0.6**2)).astype(np.float32)  # a one-pass peak
+    parabola, smoothed = (extract_points(sharp, 0.1, refine=r)[0, 0] for r in ("parabola", "smoothed"))
+    assert abs(smoothed - 20.4) < 0.05 < 0.1 < abs(parabola - 20.4)  # three sharp samples pull it to the pixel
     with pytest.raises(ValueError, match="sub-pixel"):
         extract_points(scores, 0.1, refine="quadratic")
 

@@ -76,6 +76,17 @@ def test_a_crafted_weights_file_is_refused_and_runs_nothing(tmp_path):
     assert not marker.exists()
 
 
+def test_weights_of_another_network_are_refused_in_one_line(tmp_path):
+    from deepslam.frontend.magicpoint import WEIGHTS
+
+    with pytest.raises(ValueError, match="holds no MagicPoint this version can run"):
+        MagicPoint.pretrained("S-HA", path=WEIGHTS / "magicwarp.pt")  # MagicWarp's config and layers
+    state = torch.load(WEIGHTS / "magicpoint_S.pt", weights_only=True)
+    torch.save({**state, "config": {**state["config"], "head": 16}}, tmp_path / "narrow.pt")
+    with pytest.raises(ValueError, match="holds no MagicPoint this version can run"):
+        MagicPoint.pretrained("S", path=tmp_path / "narrow.pt")  # a config its tensors do not fit
+
+
 def test_a_diverging_run_stops_with_its_last_good_checkpoint(tmp_path):
     config = train_magicpoint.TrainConfig(iterations=4, batch=2, validate_every=2, validation_per_category=1)
     train_magicpoint.run(tmp_path, replace(config, iterations=2))
@@ -330,7 +341,7 @@ def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_p
     with pytest.raises(ValueError, match="trained on labels of another"):
         adaptation.run(tmp_path / "ha", replace(config, warps=4))
     detector = MagicPoint.pretrained("S-HA", path=tmp_path / "ha" / "round2" / "best.pt")
-    assert detector.subpixel == "parabola"  # the variant's own extraction default
+    assert detector.subpixel == "smoothed"  # the variant's own extraction default
     with pytest.raises(ValueError, match="no folder of photographs"):
         adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))
 

@@ -66,7 +66,7 @@ def available_detectors(
     """FAST, Harris, Shi, every MagicPoint variant whose weights are shipped, MagicPoint S with four
     grid shifts (``MagicPointS-x4``) and S on the image enlarged 2x with two grid shifts, as the magic
     tracker runs it (``MagicPointS-2x``), and MagicPoint from each of ``weights`` (weights files or
-    training checkpoints, named by their path; one pass, sub-pixel parabola peaks, as S-HA runs); all drop
+    training checkpoints, named by their path; one pass, S-HA's own sub-pixel peaks); all drop
     detections within ``border`` pixels of the edge."""
     from deepslam.frontend.classical import ClassicalDetector
     from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint
