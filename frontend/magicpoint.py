@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from deepslam.frontend.cells import CELL
-from deepslam.frontend.nets import fold_batchnorm, pooling, read_weights, vgg_block
+from deepslam.frontend.nets import fold_batchnorm, load_network, pooling, vgg_block
 from deepslam.frontend.points import SUBPIXEL, Subpixel, check_image, extract_points
 
 WEIGHTS = Path(__file__).parent / "weights"
@@ -126,13 +126,7 @@ class MagicPoint:
         path = Path(path) if path else WEIGHTS / f"magicpoint_{variant}.pt"
         if not path.exists():
             raise FileNotFoundError(f"no MagicPoint weights at {path}; train them with `deepslam train magicpoint`")
-        config, weights = read_weights(path)
-        try:
-            net = MagicPointNet(MagicPointConfig(**config))
-            net.load_state_dict(weights)
-        except (TypeError, RuntimeError) as error:
-            reason = str(error).strip().splitlines()[0]
-            raise ValueError(f"{path} holds no MagicPoint this version can run ({reason})") from None
+        net = load_network(path, MagicPointNet, MagicPointConfig)
         return cls(net, **{**INFERENCE_DEFAULTS.get(variant, {}), **options})
 
     @torch.inference_mode()

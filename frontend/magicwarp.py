@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from deepslam.frontend.cells import CELL, points_to_cells_batch
-from deepslam.frontend.nets import fold_batchnorm, read_weights, vgg_block
+from deepslam.frontend.nets import fold_batchnorm, load_network, vgg_block
 from deepslam.geometry import fit_homography, in_image, warp_points
 
 WEIGHTS = Path(__file__).parent / "weights"
@@ -109,10 +109,7 @@ class MagicWarp:
         path = Path(path) if path else WEIGHTS / "magicwarp.pt"
         if not path.exists():
             raise FileNotFoundError(f"no MagicWarp weights at {path}; train them with `deepslam train magicwarp`")
-        config, weights = read_weights(path)
-        net = MagicWarpNet(MagicWarpConfig(**config))
-        net.load_state_dict(weights)
-        return cls(net, device)
+        return cls(load_network(path, MagicWarpNet, MagicWarpConfig), device)
 
     @torch.inference_mode()
     def estimate_batch(self, pairs: list[tuple[np.ndarray, np.ndarray]], image_size: tuple[int, int]) -> np.ndarray:

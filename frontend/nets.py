@@ -131,7 +131,7 @@ def load_checkpoint(path: str | Path, needs: tuple[str, ...] = ("model", "config
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, KeyError, struct.error) as error:
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        reason = _first_line(error)
         raise ValueError(f"{path} is not a deepslam weights file or checkpoint, or holds more than tensors and "
                          f"plain data; nothing in it was run ({reason})") from None  # fmt: skip
     missing = set(needs) - set(state if isinstance(state, dict) else ())
@@ -140,11 +140,28 @@ def load_checkpoint(path: str | Path, needs: tuple[str, ...] = ("model", "config
     return state
 
 
+def _first_line(error: Exception) -> str:
+    return str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+
+
 def read_weights(path: Path) -> tuple[dict, dict]:
     """(network config, state dict) of shipped weights or a training checkpoint; a checkpoint's moving
     average of the weights (``--ema``) when it has one, as that is what it was validated on."""
     state = load_checkpoint(path)
     return network_config(state), state.get("ema", state["model"])
+
+
+def load_network(path: Path, network: type[nn.Module], config_class: type) -> nn.Module:
+    """The ``network`` (built from ``config_class``) that shipped weights or a training checkpoint at ``path``
+    hold; ValueError in one line when the file holds another network (its config or its tensors do not fit)."""
+    config, weights = read_weights(path)
+    try:
+        net = network(config_class(**config))
+        net.load_state_dict(weights)
+    except (TypeError, RuntimeError) as error:
+        name = network.__name__.removesuffix("Net")
+        raise ValueError(f"{path} holds no {name} this version can run ({_first_line(error)})") from None
+    return net
 
 
 def resolve_device(name: str) -> str:

@@ -77,10 +77,13 @@ def test_a_crafted_weights_file_is_refused_and_runs_nothing(tmp_path):
 
 
 def test_weights_of_another_network_are_refused_in_one_line(tmp_path):
+    from deepslam.frontend import MagicWarp
     from deepslam.frontend.magicpoint import WEIGHTS
 
     with pytest.raises(ValueError, match="holds no MagicPoint this version can run"):
         MagicPoint.pretrained("S-HA", path=WEIGHTS / "magicwarp.pt")  # MagicWarp's config and layers
+    with pytest.raises(ValueError, match="holds no MagicWarp this version can run"):
+        MagicWarp.pretrained(WEIGHTS / "magicpoint_S.pt")
     state = torch.load(WEIGHTS / "magicpoint_S.pt", weights_only=True)
     torch.save({**state, "config": {**state["config"], "head": 16}}, tmp_path / "narrow.pt")
     with pytest.raises(ValueError, match="holds no MagicPoint this version can run"):
