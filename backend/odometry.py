@@ -52,7 +52,8 @@ class OdometryConfig:
         default="auto",
         metadata={
             "help": "relative pose: auto (for each pair of frames, ORB-SLAM's scores choose a homography, the "
-            "dominant plane, or an essential matrix), homography, essential, or pycolmap"
+            "dominant plane, or an essential matrix, which also wins where pairs off the plane contradict the "
+            "homography's pose), homography, essential, or pycolmap"
         },
     )
     scale: Scale = field(

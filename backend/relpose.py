@@ -3,7 +3,9 @@
 Models: a homography (planar scenes; decomposed with ``cv2.decomposeHomographyMat`` and the
 physically valid solution chosen) or an essential matrix (``cv2.recoverPose``); "auto" scores both
 as ORB-SLAM does for every pair of frames, takes the homography when R_H = S_H / (S_H + S_F) > 0.45, and
-else the essential matrix if its pose explains clearly more pairs than the homography.
+else the essential matrix if its pose explains clearly more pairs than the homography; either way the
+essential matrix wins where pairs off the homography's plane show its pose explains the pairs' epipolar
+geometry several times better (a room's second wall, seen over a short baseline).
 
 The result ``T_c1_c2`` is the pose of camera 2 in camera 1's frame (X_1 = T_c1_c2 X_2), the
 between-measurement of a pose graph. Monocular translation has no scale: it is a unit vector,
@@ -29,10 +31,14 @@ CHI2_1DOF_95 = 3.84  # chi-square 95% quantiles: one degree of freedom (point-to
 CHI2_2DOF_95 = 5.99  # ... and two (point-to-point); ORB-SLAM's model-selection thresholds
 HOMOGRAPHY_RATIO = 0.45  # ORB-SLAM: the homography wins when R_H = S_H / (S_H + S_F) is above this
 ESSENTIAL_MARGIN = 0.1  # "auto" keeps E only if its pose explains this share of the pairs more than H does
+EPIPOLAR_GAIN = 3.0  # ... or if the pairs' epipolar residual under its pose is this many times smaller than under H's
+OFF_PLANE_PX = 1.0  # ... and OFF_PLANE_MARGIN of its inliers are this far (px) from where the homography takes them
 EPIPOLAR_PX = 1.5  # a pair's Sampson distance (px) below this: the pair fits an epipolar geometry
 OFF_PLANE_MARGIN = 5  # a homography's decomposition wins outright by fitting this many more pairs off its plane
 SAME_PLANE_DEG = 20.0  # a decomposition whose normal is this close to the plane seen before is that plane ...
 PLANE_MARGIN_DEG = 15.0  # ... when the other decompositions' normals are at least this much farther from it
+ESSENTIAL_FITS = (cv2.USAC_MAGSAC, cv2.RANSAC, cv2.LMEDS)  # robust fits of E, the one explaining most pairs kept
+QUICK_FITS = (cv2.USAC_MAGSAC, cv2.RANSAC)  # ... where the scores chose H and E is only checked (LMedS: ~20 ms)
 VISIBLE_SHARE = 0.9  # a decomposition is valid if this share of its plane's points is in front of both cameras
 
 
@@ -186,14 +192,27 @@ def _same_plane(normals: list[np.ndarray], previous: np.ndarray) -> int | None:
     return None
 
 
+def _pose_sampson_px(R: np.ndarray, t: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Sampson distances (N,) in pixels of pairs p1 -> p2 (N, 2) to the epipolar geometry of X_2 = R X_1 + t."""
+    tx, ty, tz = np.ravel(t)
+    t_cross = np.array([[0.0, -tz, ty], [tz, 0.0, -tx], [-ty, tx, 0.0]])
+    return _sampson_px(t_cross @ R, p1, p2, K)
+
+
 def _off_plane_fits(R: np.ndarray, t: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> int:
     """How many pairs p1 -> p2 (N, 2) px, off the homography's plane, fit the epipolar geometry of
     X_2 = R X_1 + t (Sampson distance below ``EPIPOLAR_PX``)."""
     if len(p1) == 0:
         return 0
-    tx, ty, tz = np.ravel(t)
-    t_cross = np.array([[0.0, -tz, ty], [tz, 0.0, -tx], [-ty, tx, 0.0]])
-    return int(np.sum(_sampson_px(t_cross @ R, p1, p2, K) < EPIPOLAR_PX))
+    return int(np.sum(_pose_sampson_px(R, t, p1, p2, K) < EPIPOLAR_PX))
+
+
+def _epipolar_residual(pose: RelativePose, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> float:
+    """Mean squared Sampson distance (px^2, each capped at ``EPIPOLAR_PX``) of all pairs p1 -> p2 (N, 2) to
+    the epipolar geometry of ``pose``: how well its motion explains the pairs on and off any plane."""
+    T_c2_c1 = np.linalg.inv(pose.T_c1_c2)
+    distances = _pose_sampson_px(T_c2_c1[:3, :3], T_c2_c1[:3, 3], p1, p2, K)
+    return float(np.mean(np.minimum(distances, EPIPOLAR_PX) ** 2))
 
 
 def _sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -206,19 +225,26 @@ def _sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) ->
     return np.sqrt(num / (Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2 + 1e-12))
 
 
-def essential_pose(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float = EPIPOLAR_PX) -> RelativePose:
+def essential_pose(
+    p1: np.ndarray,
+    p2: np.ndarray,
+    K: np.ndarray,
+    threshold: float = EPIPOLAR_PX,
+    fits: tuple[int, ...] = ESSENTIAL_FITS,
+) -> RelativePose:
     """Relative pose from an essential matrix and ``cv2.recoverPose`` (cheirality).
 
     Scenes dominated by a plane, seen over a short baseline, make E nearly degenerate: a robust fit can
-    lock onto the plane and explain only its points. So E is fitted by MAGSAC, RANSAC and LMedS and the
-    solution whose pose explains the most matches (Sampson distance below ``threshold`` pixels, in
-    front of both cameras) is kept. A camera that only turned gets ``rotation_only_pose``.
+    lock onto the plane and explain only its points. So E is fitted by each of ``fits`` (OpenCV's robust
+    methods; by default MAGSAC, RANSAC and LMedS) and the solution whose pose explains the most matches
+    (Sampson distance below ``threshold`` pixels, in front of both cameras) is kept. A camera that only
+    turned gets ``rotation_only_pose``.
     """
     rotation = rotation_only_pose(p1, p2, K)
     if rotation is not None:
         return rotation
     best: RelativePose | None = None
-    for method in (cv2.USAC_MAGSAC, cv2.RANSAC, cv2.LMEDS):
+    for method in fits:
         E, _ = cv2.findEssentialMat(p1, p2, K, method, 0.999, 1.0)
         if E is None or E.shape != (3, 3):
             continue
@@ -354,11 +380,37 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
         return essential_pose(p1, p2, K)
     model, H, inliers_h = select_model(p1, p2, sigma)
     planar = homography_pose(p1, p2, K, H, previous_t, inliers_h, previous_normal)
+    general = None
     if model == "essential":
         general = essential_pose(p1, p2, K)
         if general.ok and general.inliers.sum() >= planar.inliers.sum() + ESSENTIAL_MARGIN * len(p1):
             return general
-    return planar
+    if H is None or not planar.ok or planar.rotation_only:
+        return planar
+    off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
+    if off_plane.sum() < OFF_PLANE_MARGIN:  # too few pairs off the plane to contradict it: spare fitting E
+        return planar
+    general = general or essential_pose(p1, p2, K, fits=QUICK_FITS)
+    return general if _contradicted(planar, general, off_plane, p1, p2, K) else planar
+
+
+def _transfer_px(H: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Distances (N,) in pixels from where the homography H (3, 3) takes p1 (N, 2) to p2 (N, 2)."""
+    return np.linalg.norm(cv2.perspectiveTransform(p1.reshape(-1, 1, 2), H).reshape(-1, 2) - p2, axis=1)
+
+
+def _contradicted(
+    planar: RelativePose, general: RelativePose, off_plane: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray
+) -> bool:
+    """Whether the pairs p1 -> p2 (N, 2) off the homography's plane (``off_plane`` (N,): over ``OFF_PLANE_PX``
+    from where it takes them) contradict the pose decomposed from it, ``planar``, in favour of the essential
+    matrix's, ``general``: ``OFF_PLANE_MARGIN`` of E's inliers are off the plane and the pairs' epipolar
+    residual is ``EPIPOLAR_GAIN`` times smaller under E's pose. A room's other walls, seen over a short
+    baseline, still fit the dominant wall's homography within its tolerance, and that homography's pose can
+    then be degrees off."""
+    if not general.ok or general.rotation_only or np.sum(general.inliers & off_plane) < OFF_PLANE_MARGIN:
+        return False
+    return _epipolar_residual(planar, p1, p2, K) > EPIPOLAR_GAIN * _epipolar_residual(general, p1, p2, K)
 
 
 def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:
@@ -367,7 +419,9 @@ def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[st
 
     Between frames with little parallax both models fit and R_H does not discriminate, and a plane seen
     over a short baseline makes E nearly degenerate: "auto" therefore keeps E only when its pose explains
-    ``ESSENTIAL_MARGIN`` more of the pairs than the homography does."""
+    ``ESSENTIAL_MARGIN`` more of the pairs than the homography does, or (``_estimate``) when
+    ``OFF_PLANE_MARGIN`` of its inliers lie ``OFF_PLANE_PX`` off the homography and the pairs' epipolar
+    residual under its pose is ``EPIPOLAR_GAIN`` times smaller than under the homography's."""
     H, _ = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
     if H is None:
         return "essential", None, np.zeros(len(p1), bool)

@@ -121,6 +121,22 @@ def test_homography_pose_keeps_the_true_solution_when_a_few_inliers_lie_off_its_
     np.testing.assert_allclose(result.plane_normal, normal, atol=0.02)
 
 
+def test_auto_takes_the_essential_matrix_where_a_second_wall_shows_the_homography_pose_wrong():
+    rng = np.random.default_rng(3)
+    T_c1_c2 = pose(np.array([0.0, 0.01, 0.0]), np.array([0.03, 0.0, 0.15]))  # 15 cm ahead, 4 m from the wall
+    wall = np.c_[rng.uniform(-2, 2, (100, 2)), np.full(100, 4.0)]
+    side = np.c_[np.full(30, -1.2), rng.uniform(-0.6, 0.6, 30), rng.uniform(1.5, 3.5, 30)]  # a side wall, x = -1.2
+    X = np.r_[wall, side]
+    p1, p2 = project(X, K)[0], project(transform(invert(T_c1_c2), X), K)[0]
+    seen = in_image(p1, (120, 160)) & in_image(p2, (120, 160))
+    p1, p2 = (p[seen] + rng.normal(0, 0.1, (seen.sum(), 2)) for p in (p1, p2))
+    planar = relpose.estimate(p1, p2, K, "homography")
+    auto = relpose.estimate(p1, p2, K, "auto")
+    assert relpose.select_model(p1, p2)[0] == "homography"  # the scores alone keep the wall's homography
+    assert _errors(planar.T_c1_c2, T_c1_c2)[1] > 20  # whose pose the side wall's pairs contradict
+    assert auto.model == "essential" and _errors(auto.T_c1_c2, T_c1_c2)[1] < 5
+
+
 def test_pycolmap_agrees_with_opencv(rng):
     p1, p2 = _views(rng, False)
     ours, theirs = relpose.estimate(p1, p2, K, "essential"), relpose.estimate(p1, p2, K, "pycolmap")
