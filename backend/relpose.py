@@ -390,7 +390,8 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
     off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
     if off_plane.sum() < OFF_PLANE_MARGIN:  # too few pairs off the plane to contradict it: spare fitting E
         return planar
-    general = general or essential_pose(p1, p2, K, fits=QUICK_FITS)
+    if general is None:  # the scores chose H: E only to check it
+        general = essential_pose(p1, p2, K, fits=QUICK_FITS)
     return general if _contradicted(planar, general, off_plane, p1, p2, K) else planar
 
 
