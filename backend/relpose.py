@@ -79,14 +79,14 @@ def _normalised(points: np.ndarray, K: np.ndarray) -> np.ndarray:
     return cv2.undistortPoints(points.reshape(-1, 1, 2).astype(np.float64), K, None).reshape(-1, 2)
 
 
+def _transfer_px(H: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Distances (N,) in pixels from where the homography H (3, 3) takes p1 (N, 2) to p2 (N, 2)."""
+    return np.linalg.norm(cv2.perspectiveTransform(p1.reshape(-1, 1, 2), H).reshape(-1, 2) - p2, axis=1)
+
+
 def _score_homography(H: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
     """ORB-SLAM's S_H: symmetric transfer error with chi-square threshold ``CHI2_2DOF_95``."""
-
-    def transfer(a, b, M):
-        moved = cv2.perspectiveTransform(a.reshape(-1, 1, 2), M).reshape(-1, 2)
-        return np.sum((moved - b) ** 2, 1) / sigma**2
-
-    e12, e21 = transfer(p1, p2, H), transfer(p2, p1, np.linalg.inv(H))
+    e12, e21 = (_transfer_px(M, a, b) ** 2 / sigma**2 for M, a, b in ((H, p1, p2), (np.linalg.inv(H), p2, p1)))
     score = np.where(e12 < CHI2_2DOF_95, CHI2_2DOF_95 - e12, 0) + np.where(e21 < CHI2_2DOF_95, CHI2_2DOF_95 - e21, 0)
     return float(score.sum()), (e12 < CHI2_2DOF_95) & (e21 < CHI2_2DOF_95)
 
@@ -393,11 +393,6 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
     if general is None:  # the scores chose H: E only to check it
         general = essential_pose(p1, p2, K, fits=QUICK_FITS)
     return general if _contradicted(planar, general, off_plane, p1, p2, K) else planar
-
-
-def _transfer_px(H: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
-    """Distances (N,) in pixels from where the homography H (3, 3) takes p1 (N, 2) to p2 (N, 2)."""
-    return np.linalg.norm(cv2.perspectiveTransform(p1.reshape(-1, 1, 2), H).reshape(-1, 2) - p2, axis=1)
 
 
 def _contradicted(
