@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from deepslam.geometry import path_length
+from deepslam.geometry import path_length, rotation_angle
 
 
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
@@ -39,10 +39,6 @@ def ate_rmse(estimate: np.ndarray, truth: np.ndarray, with_scale: bool = False) 
     return float(np.sqrt(np.mean(np.sum((aligned[:, :3, 3] - truth[:, :3, 3]) ** 2, 1))))
 
 
-def _rotation_angle(R: np.ndarray) -> np.ndarray:
-    return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
-
-
 def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Relative pose errors over frame pairs ``delta`` apart: (translation errors (M,), rotation
     errors (M,) in degrees), from E = (T_gt_i^-1 T_gt_j)^-1 (T_est_i^-1 T_est_j)."""
@@ -51,7 +47,7 @@ def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.nda
     rel_est = np.linalg.inv(estimate[:-delta]) @ estimate[delta:]
     rel_gt = np.linalg.inv(truth[:-delta]) @ truth[delta:]
     error = np.linalg.inv(rel_gt) @ rel_est
-    return np.linalg.norm(error[:, :3, 3], axis=1), np.degrees(_rotation_angle(error[:, :3, :3]))
+    return np.linalg.norm(error[:, :3, 3], axis=1), np.degrees(rotation_angle(error[:, :3, :3]))
 
 
 def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str, float]:

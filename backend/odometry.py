@@ -4,7 +4,8 @@ Every frame is measured against the current keyframe (a wide baseline: frame-to-
 pixel or two, too little for H or E), with an extra factor to the keyframe before it when they still
 share tracks; a frame whose median track motion since the keyframe passes ``keyframe_parallax`` pixels,
 or that shares too few tracks with it (or too few the front-end confirms: ``Tracker.confirm``), becomes the
-next keyframe.
+next keyframe. A measured pose that turns more than ``max_rotation_jump`` degrees away from the previous
+frame's estimate gives way to the homography's or the essential matrix's pose where that one agrees with it.
 
 Frames come from any source (a simulator or a replayed log) as ``InputFrame``s; the odometry needs no
 simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Literal, get_args
 
 import numpy as np
@@ -25,8 +27,11 @@ import numpy as np
 from deepslam.backend import relpose
 from deepslam.backend.graph import GraphConfig, PoseGraph, measurement_sigmas
 from deepslam.frontend.tracking import Tracker, Tracks, Truth
+from deepslam.geometry import rotation_angle
 
 Scale = Literal["gt", "plane", "none"]
+FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
+MAX_TURN_OF_TRANSLATION = 60.0  # degrees a fallback's translation may lie from the motion so far
 SCALES: tuple[str, ...] = get_args(Scale)
 
 
@@ -70,6 +75,16 @@ class OdometryConfig:
     keyframe_parallax: float = field(
         default=10.0, metadata={"help": "median track motion (px) since the keyframe that makes a new keyframe"}
     )
+    max_rotation_jump: float = field(
+        default=10.0,
+        metadata={
+            "help": "where a measured pose turns more than this many degrees away from the previous frame's estimate "
+            "(both seen from the same keyframe), the homography's or the essential matrix's pose is taken instead if "
+            f"it agrees with that estimate (rotation within this, translation within {MAX_TURN_OF_TRANSLATION:g} deg); "
+            "raise it for cameras that turn this fast between frames, 0 turns it off",
+            "min": 0,
+        },
+    )
     min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
     min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
     reinitialise_after: int = 3  # this many lost frames in a row: the current frame becomes the keyframe
@@ -90,6 +105,8 @@ class OdometryConfig:
             )
         if self.plane_distance is not None and not self.plane_distance > 0:
             raise ValueError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
+        if not self.max_rotation_jump >= 0:
+            raise ValueError(f"the largest rotation jump must be at least 0 degrees, got {self.max_rotation_jump}")
         if self.reinitialise_after < 1:
             raise ValueError(f"reinitialise_after must be at least 1, got {self.reinitialise_after}")
 
@@ -176,9 +193,16 @@ class Odometry:
         p1 = tracks_i.points[pairs[:, 0]]
         R_world_i = self.graph.pose(i)[:3, :3]
         normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
-        rel = relpose.estimate(
-            p1, p2, frame_j.K, self.config.method, frame_j.shape, self.last_translation, previous_normal=normal
-        )
+        estimate = partial(
+            relpose.estimate, p1, p2, frame_j.K, size=frame_j.shape, previous_t=self.last_translation,
+            previous_normal=normal,
+        )  # fmt: skip
+        rel, gate = estimate(self.config.method), self.config.max_rotation_jump
+        if gate and rel.ok and self._jump(i, j, rel)[0] > gate:  # another model may agree with the motion
+            others = [estimate(method) for method in FALLBACK_METHODS]
+            closest = min(others, key=lambda other: self._jump(i, j, other))
+            rotation, translation = self._jump(i, j, closest)
+            rel = closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
         if rel.ok and self.config.scale != "gt" and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
@@ -189,6 +213,19 @@ class Odometry:
             norm = np.linalg.norm(T[:3, 3])
             T[:3, 3] *= self._step_length(i, j, rel) / max(norm, 1e-12)
         return rel, T, pairs, p2
+
+    def _jump(self, i: int, j: int, rel: relpose.RelativePose) -> tuple[float, float]:
+        """Degrees between the pose ``rel`` measures from frame i to j and the estimate of frame j - 1 seen
+        from frame i (consecutive frames barely move): rotation, then translation direction (0 while that
+        estimate has not moved); infinite for a failed pose."""
+        if not rel.ok:
+            return np.inf, np.inf
+        previous = np.linalg.inv(self.graph.pose(i)) @ self.graph.pose(j - 1)
+        rotation = np.degrees(rotation_angle(rel.T_c1_c2[:3, :3].T @ previous[:3, :3]))
+        t, t_previous = rel.T_c1_c2[:3, 3], previous[:3, 3]
+        lengths = np.linalg.norm(t) * np.linalg.norm(t_previous)
+        translation = np.degrees(np.arccos(np.clip(t @ t_previous / lengths, -1, 1))) if lengths > 0 else 0.0
+        return float(rotation), float(translation)
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
         """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""

@@ -1,4 +1,5 @@
-"""Conventions every package shares: pixel coordinates, point warping, homography fits, path length.
+"""Conventions every package shares: pixel coordinates, point warping, homography fits, path length,
+rotation angles.
 
 Pixels are float (x, y), x right, y down, the centre of the top-left pixel at (0, 0), so an image of
 size (H, W) covers [-0.5, W - 0.5] x [-0.5, H - 0.5]. ``H_ab`` maps points of image a to image b.
@@ -45,3 +46,8 @@ def in_image(points: np.ndarray, size: tuple[int, int], margin: float = 0.0) -> 
 def path_length(poses: np.ndarray) -> float:
     """Length (m) of the path through the positions of (N, 4, 4) poses."""
     return float(np.linalg.norm(np.diff(np.asarray(poses)[:, :3, 3], axis=0), axis=1).sum())
+
+
+def rotation_angle(R: np.ndarray) -> np.ndarray:
+    """Angle (radians) of rotation matrices (..., 3, 3)."""
+    return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))

@@ -290,6 +290,27 @@ def test_lost_frames_are_flagged_and_tracking_reinitialises():
     assert not output.diagnostics[-1].lost  # tracking picked up again after re-initialising
 
 
+@pytest.mark.parametrize("gate, kept", [(5.0, True), (0.0, False)])
+def test_a_pose_that_turns_away_from_the_frame_before_gives_way_to_a_model_that_does_not(monkeypatch, gate, kept):
+    real, wrong_frames = relpose.estimate, {12}
+    turned = pose(np.array([0.0, np.radians(20), 0.0]), np.zeros(3))
+    frame_index = [0]
+
+    def turned_when_chosen(p1, p2, K, method="auto", **options):  # the chosen model is 20 deg off in frame 12
+        estimate = real(p1, p2, K, method, **options)
+        if method == "auto" and frame_index[0] in wrong_frames and estimate.ok:
+            estimate.T_c1_c2 = estimate.T_c1_c2 @ turned
+        return estimate
+
+    monkeypatch.setattr(relpose, "estimate", turned_when_chosen)
+    odometry = Odometry(OracleTracker(noise_px=0.0), OdometryConfig(max_rotation_jump=gate))
+    for frame_index[0], frame in enumerate(simulated_frames(Scenario(ScenarioConfig(world="plane", frames=14)))):
+        result = odometry.process(frame)
+        if result.index == 12:
+            error = _rotation_error_deg(result.T_world_cam, frame.T_world_cam)
+    assert (error < 0.5) if kept else (error > 10)
+
+
 def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apart(tmp_path):
     from deepslam.backend.evaluation.sweep import save_plots
 
