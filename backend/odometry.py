@@ -157,6 +157,19 @@ def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
     return np.stack([ia, ib], 1).astype(np.int64)
 
 
+def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float]:
+    """Degrees between the pose ``rel`` measures (T_c1_c2, (4, 4)) and ``previous``, the estimate (4, 4) of the
+    frame before seen from the same camera 1 (consecutive frames barely move): rotation, then translation
+    direction (0 while that estimate has not moved); infinite for a failed pose."""
+    if not rel.ok:
+        return np.inf, np.inf
+    rotation = np.degrees(rotation_angle(rel.T_c1_c2[:3, :3].T @ previous[:3, :3]))
+    t, t_previous = rel.T_c1_c2[:3, 3], previous[:3, 3]
+    lengths = np.linalg.norm(t) * np.linalg.norm(t_previous)
+    translation = np.degrees(np.arccos(np.clip(t @ t_previous / lengths, -1, 1))) if lengths > 0 else 0.0
+    return float(rotation), float(translation)
+
+
 class Odometry:
     """Feed frames in order with ``process``; ``poses`` holds the optimised trajectory so far."""
 
@@ -198,11 +211,12 @@ class Odometry:
             previous_normal=normal,
         )  # fmt: skip
         rel, gate = estimate(self.config.method), self.config.max_rotation_jump
-        if gate and rel.ok and self._jump(i, j, rel)[0] > gate:  # another model may agree with the motion
-            others = [estimate(method) for method in FALLBACK_METHODS]
-            closest = min(others, key=lambda other: self._jump(i, j, other))
-            rotation, translation = self._jump(i, j, closest)
-            rel = closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
+        if gate and rel.ok:
+            previous = np.linalg.inv(self.graph.pose(i)) @ self.graph.pose(j - 1)  # frame j - 1 seen from frame i
+            if _turn(rel, previous)[0] > gate:  # another model may agree with the motion
+                turns = [(_turn(other, previous), other) for other in map(estimate, FALLBACK_METHODS)]
+                (rotation, translation), closest = min(turns, key=lambda turn: turn[0])
+                rel = closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
         if rel.ok and self.config.scale != "gt" and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
@@ -213,19 +227,6 @@ class Odometry:
             norm = np.linalg.norm(T[:3, 3])
             T[:3, 3] *= self._step_length(i, j, rel) / max(norm, 1e-12)
         return rel, T, pairs, p2
-
-    def _jump(self, i: int, j: int, rel: relpose.RelativePose) -> tuple[float, float]:
-        """Degrees between the pose ``rel`` measures from frame i to j and the estimate of frame j - 1 seen
-        from frame i (consecutive frames barely move): rotation, then translation direction (0 while that
-        estimate has not moved); infinite for a failed pose."""
-        if not rel.ok:
-            return np.inf, np.inf
-        previous = np.linalg.inv(self.graph.pose(i)) @ self.graph.pose(j - 1)
-        rotation = np.degrees(rotation_angle(rel.T_c1_c2[:3, :3].T @ previous[:3, :3]))
-        t, t_previous = rel.T_c1_c2[:3, 3], previous[:3, 3]
-        lengths = np.linalg.norm(t) * np.linalg.norm(t_previous)
-        translation = np.degrees(np.arccos(np.clip(t @ t_previous / lengths, -1, 1))) if lengths > 0 else 0.0
-        return float(rotation), float(translation)
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
         """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""
