@@ -131,6 +131,11 @@ def homography_pose(
     elif inliers is None:
         inliers = np.ones(len(p1), bool)
     count, rotations, translations, normals = cv2.decomposeHomographyMat(H, K)
+    solutions = (rotations, translations, normals)
+    finite = [i for i in range(count) if all(np.isfinite(part[i]).all() for part in solutions)]
+    if not finite:  # OpenCV's closed form divides by zero on some exact homographies (noise-free matches)
+        return _failed(len(p1), "the homography's decomposition is not finite")
+    count, (rotations, translations, normals) = len(finite), ([part[i] for i in finite] for part in solutions)
     visible = _visible_shares(rotations, normals, _normalised(p1[inliers], K), _normalised(p2[inliers], K))
     candidates = [i for i in range(count) if visible[i] >= VISIBLE_SHARE] or list(range(count))
     # OpenCV's normal satisfies n . X_1 = d > 0 on the plane: a plane in front of camera 1 has n_z > 0
@@ -385,7 +390,9 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
         general = essential_pose(p1, p2, K)
         if general.ok and general.inliers.sum() >= planar.inliers.sum() + ESSENTIAL_MARGIN * len(p1):
             return general
-    if H is None or not planar.ok or planar.rotation_only:
+    if not planar.ok:  # no pose from the plane: the essential matrix's
+        return general if general is not None else essential_pose(p1, p2, K)
+    if H is None or planar.rotation_only:
         return planar
     off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
     if off_plane.sum() < OFF_PLANE_MARGIN:  # too few pairs off the plane to contradict it: spare fitting E

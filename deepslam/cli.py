@@ -508,8 +508,8 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{error.filename}: " if error.filename else ""
         print(f"deepslam: error: {where}{error.strerror or error}", file=sys.stderr)
         return 1
-    except (ValueError, RuntimeError) as error:
-        print(f"deepslam: error: {error}", file=sys.stderr)
+    except (ValueError, RuntimeError) as error:  # one line, also for gtsam's and OpenCV's many-line messages
+        print(f"deepslam: error: {' '.join(str(error).split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as interrupt:
         print(f"deepslam: {'terminated' if isinstance(interrupt, Terminated) else 'interrupted'}", file=sys.stderr)

@@ -136,6 +136,27 @@ def test_auto_takes_the_essential_matrix_where_a_second_wall_shows_the_homograph
     assert auto.model == "essential" and _errors(auto.T_c1_c2, T_c1_c2)[1] < 5
 
 
+def test_a_homography_opencv_cannot_decompose_gives_a_failed_pose(rng):
+    # a 9.5 px sideways step along a wall, as noise-free matches fit it: OpenCV's closed form returns NaN
+    H = np.array([[1.0, 0.0, -9.52], [0.0, 1.0, 0.0], [0.0, 1e-15, 1.0]])
+    if np.isfinite(cv2.decomposeHomographyMat(H, K)[1][0]).all():
+        pytest.skip("this OpenCV decomposes the homography")
+    p1 = rng.uniform([10, 10], [150, 110], (60, 2))
+    p2 = cv2.perspectiveTransform(p1[None], H)[0]
+    planar = relpose.homography_pose(p1, p2, K, H)
+    assert planar.model == "failed" and "not finite" in planar.reason and np.isfinite(planar.T_c1_c2).all()
+
+
+def test_a_noise_free_oracle_in_the_room_keeps_a_finite_trajectory():
+    # along the line, seed 1, the exact matches of frame 47 fit a homography that OpenCV cannot decompose
+    output = run_frames(
+        simulated_frames(Scenario(ScenarioConfig(world="room", trajectory="line", seed=1))),
+        Odometry(OracleTracker(noise_px=0.0, seed=1)),
+        progress=False,
+    )
+    assert np.isfinite(output.estimate).all() and drift.ate_rmse(output.estimate, output.truth) < 0.02
+
+
 def test_pycolmap_agrees_with_opencv(rng):
     p1, p2 = _views(rng, False)
     ours, theirs = relpose.estimate(p1, p2, K, "essential"), relpose.estimate(p1, p2, K, "pycolmap")
