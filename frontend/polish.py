@@ -4,7 +4,10 @@ MagicPoint's detections jitter by a pixel or so from frame to frame, and a few t
 detection; both pass a robust homography fit and bend the pose. ``polish`` moves each current point to
 where Lucas-Kanade aligns the keyframe's patch around its partner (starting from the tracked position,
 no pyramid) and drops the pairs it cannot confirm: moved ``max_move`` pixels or more, or not aligning back
-to their partner (a forward-backward check, ``max_return``). It aligns contrast-normalised
+to their partner (a forward-backward check, ``max_return``). A pair dropped from its tracked position gets a
+second chance from where the homography of the confirmed pairs puts it (``retry_gate``): a track that snapped
+to a jittering detection frame after frame drifts off its point, while its keyframe patch is still there to
+align. It aligns contrast-normalised
 images (``normalise_contrast``), so brightness, contrast and shading changes between the two frames do not
 bias it, and it first warps the keyframe by the homography the pairs agree on (the dominant plane's), so
 that the patches it compares are seen from about the same viewpoint: the scale, rotation and perspective
@@ -31,7 +34,9 @@ class PolishConfig:
     lands farther from its partner than ``max_return`` px and ``return_scale`` times the pairs' median (image
     noise spreads every pair's return; ``max_return`` None: no backward check); ``warp_threshold``: inlier
     threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the keyframe before aligning, or
-    None to align the keyframe as it is."""
+    None to align the keyframe as it is; ``retry_gate``: a pair not confirmed from its tracked position is
+    aligned again from where the confirmed pairs' homography puts it, if that lies within this many pixels of
+    the tracked position (None: no second chance)."""
 
     sigma: float = 3.0
     window: int = 15
@@ -39,6 +44,7 @@ class PolishConfig:
     max_return: float | None = 0.25
     return_scale: float = 3.0
     warp_threshold: float | None = 3.0
+    retry_gate: float | None = 3.0
 
 
 DEFAULT_POLISH = PolishConfig()
@@ -70,18 +76,48 @@ def polish(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Align each pair of ``reference_points`` (K, 2) in image ``reference`` and ``current_points`` (K, 2)
     in ``current`` (both from ``normalise_contrast``), the reference warped first by the pairs' homography
-    (``plane_warp``), then check each the other way: the current image warped by the homography of the
+    (``plane_warp``), those it drops again from where the homography of the confirmed ones puts them
+    (``_realign``), then check each the other way: the current image warped by the homography of the
     polished pairs, aligned back into the reference. Returns the polished current points (K, 2) float64 and a
     mask (K,) of the pairs Lucas-Kanade confirmed: converged, inside the image, within ``config.max_move``
     pixels of where they started and back close enough to their partners (``config.max_return``)."""
+    reference_points = np.asarray(reference_points, np.float64).reshape(-1, 2)
+    current_points = np.asarray(current_points, np.float64).reshape(-1, 2)
     moved, confirmed = _align_pairs(reference, current, reference_points, current_points, config)
+    if config.retry_gate is not None:
+        _realign(reference, current, reference_points, current_points, moved, confirmed, config)
     if config.max_return is not None and confirmed.any():
-        partners = np.asarray(reference_points, np.float64)[confirmed]
+        partners = reference_points[confirmed]
         back, returned = _align_pairs(current, reference, moved[confirmed], partners, config)
         distance = np.where(returned, np.linalg.norm(back - partners, axis=1), np.inf)
         returned &= distance < max(config.max_return, config.return_scale * float(np.median(distance)))
         confirmed[confirmed] = returned
     return moved, confirmed
+
+
+def _realign(
+    reference: np.ndarray,
+    current: np.ndarray,
+    reference_points: np.ndarray,
+    current_points: np.ndarray,
+    moved: np.ndarray,
+    confirmed: np.ndarray,
+    config: PolishConfig,
+) -> None:
+    """The second chance of ``polish``, in place of ``moved`` (K, 2) and ``confirmed`` (K,): each pair not
+    confirmed whose tracked point lies within ``config.retry_gate`` px of where the homography of the confirmed
+    pairs (at least 8) puts its partner is aligned again from there."""
+    if confirmed.all() or confirmed.sum() < 8:
+        return
+    H = plane_warp(reference_points[confirmed], moved[confirmed], config.warp_threshold)
+    if H is None:
+        return
+    start = warp_points(reference_points, H)
+    retry = ~confirmed & (np.linalg.norm(start - current_points, axis=1) < config.retry_gate)
+    if retry.any():
+        moved[retry], confirmed[retry] = _align_pairs(
+            reference, current, reference_points[retry], start[retry], config, warp=H
+        )
 
 
 def _align_pairs(
@@ -90,14 +126,16 @@ def _align_pairs(
     reference_points: np.ndarray,
     current_points: np.ndarray,
     config: PolishConfig,
+    warp: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One direction of ``polish``: the current points (K, 2) Lucas-Kanade moves to and the mask (K,) of those
-    it confirmed (converged, inside the image, moved less than ``config.max_move`` pixels)."""
+    it confirmed (converged, inside the image, moved less than ``config.max_move`` pixels). The reference is
+    warped by ``warp`` (3, 3), or where None by the homography the pairs agree on (``plane_warp``)."""
     if len(reference_points) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     reference_points = np.asarray(reference_points, np.float64)
     start = np.asarray(current_points, np.float64).reshape(-1, 2)
-    H = plane_warp(reference_points, start, config.warp_threshold)
+    H = warp if warp is not None else plane_warp(reference_points, start, config.warp_threshold)
     if H is not None:
         h, w = current.shape
         reference = cv2.warpPerspective(reference, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

@@ -367,6 +367,23 @@ def test_polish_aligns_pairs_through_a_contrast_change_and_drops_the_ones_it_can
     assert empty.shape == (0, 2) and none.shape == (0,)
 
 
+def test_polish_aligns_pairs_that_drifted_off_their_point_again_from_where_the_others_homography_puts_them():
+    rng = np.random.default_rng(6)
+    reference = _blurred_noise(rng, 2.0)
+    shift = np.array([0.9, -1.1])
+    current = cv2.warpAffine(reference, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (160, 120))
+    images = normalise_contrast(reference.astype(np.uint8)), normalise_contrast(current.astype(np.uint8))
+    points = np.stack(np.meshgrid(np.arange(24, 140, 10.0), np.arange(24, 100, 10.0)), -1).reshape(-1, 2)
+    start = points + shift + rng.uniform(-0.3, 0.3, points.shape)
+    drifted = np.arange(len(points)) % 4 == 0  # tracks that snapped to jittering detections for a while
+    start[drifted] += rng.choice([-1, 1], (drifted.sum(), 2)) * rng.uniform(1.6, 2.0, (drifted.sum(), 2))
+    _, once = polish(*images, points, start, PolishConfig(retry_gate=None))
+    polished, twice = polish(*images, points, start)
+    assert not once[drifted].any() and once[~drifted].all()  # Lucas-Kanade from there moves them too far
+    assert twice.all()  # from where the other pairs' homography puts them, they align
+    assert np.abs(polished[drifted] - (points[drifted] + shift)).max() < 0.1
+
+
 def test_polish_drops_pairs_that_do_not_align_back_to_their_partner():
     reference, shift = _blurred_noise(np.random.default_rng(0), 2.0), np.array([0.6, -0.4])
     move = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
