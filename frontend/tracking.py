@@ -352,9 +352,9 @@ class TrackerConfig:
         default=True,
         metadata={
             "help": "confirm and polish the pairs each pose is measured from (a frame and its keyframe) by "
-            "Lucas-Kanade on contrast-normalised images, dropping those it moves 1.5 px or more or that do not "
-            "align back to their keyframe point (magic front-end; --no-polish: correspondences from MagicPoint "
-            "and MagicWarp alone)"
+            "Lucas-Kanade on contrast-normalised images, dropping those it moves 1.5 px or more (after a second "
+            "try from where the confirmed pairs' homography puts them) or that do not align back to their "
+            "keyframe point (magic front-end; --no-polish: correspondences from MagicPoint and MagicWarp alone)"
         },
     )
     polish_warp: bool = field(
