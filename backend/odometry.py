@@ -27,7 +27,7 @@ import numpy as np
 from deepslam.backend import relpose
 from deepslam.backend.graph import GraphConfig, PoseGraph, measurement_sigmas
 from deepslam.frontend.tracking import Tracker, Tracks, Truth
-from deepslam.geometry import rotation_angle
+from deepslam.geometry import rotation_angle, vector_angle
 
 Scale = Literal["gt", "plane", "none"]
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
@@ -164,9 +164,7 @@ def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float
     if not rel.ok:
         return np.inf, np.inf
     rotation = np.degrees(rotation_angle(rel.T_c1_c2[:3, :3].T @ previous[:3, :3]))
-    t, t_previous = rel.T_c1_c2[:3, 3], previous[:3, 3]
-    lengths = np.linalg.norm(t) * np.linalg.norm(t_previous)
-    translation = np.degrees(np.arccos(np.clip(t @ t_previous / lengths, -1, 1))) if lengths > 0 else 0.0
+    translation = np.degrees(vector_angle(rel.T_c1_c2[:3, 3], previous[:3, 3]))
     return float(rotation), float(translation)
 
 

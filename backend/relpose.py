@@ -20,6 +20,8 @@ from typing import Literal, get_args
 import cv2
 import numpy as np
 
+from deepslam.geometry import vector_angle
+
 Method = Literal["auto", "homography", "essential", "pycolmap"]
 METHODS: tuple[str, ...] = get_args(Method)
 MIN_MATCHES = 8  # fewer matches than this: no relative pose
@@ -190,7 +192,7 @@ def _visible_shares(
 def _same_plane(normals: list[np.ndarray], previous: np.ndarray) -> int | None:
     """Index of the one normal (unit (3,)) within ``SAME_PLANE_DEG`` of ``previous`` and ``PLANE_MARGIN_DEG``
     closer to it than any other; None if there is no such clear choice."""
-    angles = np.degrees(np.arccos(np.clip([n @ previous / np.linalg.norm(previous) for n in normals], -1, 1)))
+    angles = np.degrees(vector_angle(np.array(normals), previous))
     order = np.argsort(angles)
     if angles[order[0]] <= SAME_PLANE_DEG and angles[order[1]] - angles[order[0]] >= PLANE_MARGIN_DEG:
         return int(order[0])

@@ -1,5 +1,5 @@
 """Conventions every package shares: pixel coordinates, point warping, homography fits, path length,
-rotation angles.
+rotation angles and angles between vectors.
 
 Pixels are float (x, y), x right, y down, the centre of the top-left pixel at (0, 0), so an image of
 size (H, W) covers [-0.5, W - 0.5] x [-0.5, H - 0.5]. ``H_ab`` maps points of image a to image b.
@@ -51,3 +51,11 @@ def path_length(poses: np.ndarray) -> float:
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Angle (radians) of rotation matrices (..., 3, 3)."""
     return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+
+
+def vector_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (radians) between vectors ``a`` and ``b`` (..., 3), broadcast; 0 where either has no length."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    lengths = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
+    cosine = np.sum(a * b, axis=-1) / np.where(lengths > 0, lengths, 1.0)
+    return np.where(lengths > 0, np.arccos(np.clip(cosine, -1, 1)), 0.0)

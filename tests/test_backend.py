@@ -9,7 +9,7 @@ from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipelin
 from deepslam.backend.graph import GraphConfig, PoseGraph
 from deepslam.backend.odometry import Odometry, OdometryConfig
 from deepslam.frontend.tracking import OracleTracker, TrackerConfig, Truth, make_tracker
-from deepslam.geometry import in_image, path_length, rotation_angle
+from deepslam.geometry import in_image, path_length, rotation_angle, vector_angle
 from deepslam.sim.camera import intrinsics, invert, pose, project, transform
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -31,8 +31,7 @@ def _rotation_error_deg(T, T_true):
 
 def _errors(T, T_true):
     angle = _rotation_error_deg(T, T_true)
-    t, t_true = T[:3, 3] / np.linalg.norm(T[:3, 3]), T_true[:3, 3] / np.linalg.norm(T_true[:3, 3])
-    return angle, np.degrees(np.arccos(np.clip(t @ t_true, -1, 1)))
+    return angle, np.degrees(vector_angle(T[:3, 3], T_true[:3, 3]))
 
 
 @pytest.mark.parametrize(
@@ -161,6 +160,13 @@ def test_pycolmap_agrees_with_opencv(rng):
     p1, p2 = _views(rng, False)
     ours, theirs = relpose.estimate(p1, p2, K, "essential"), relpose.estimate(p1, p2, K, "pycolmap")
     assert _errors(ours.T_c1_c2, theirs.T_c1_c2)[0] < 0.5
+
+
+def test_vector_angle_broadcasts_and_is_zero_for_a_vector_without_length():
+    normals = np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 1.0], [0.0, -3.0, 0.0]])
+    np.testing.assert_allclose(np.degrees(vector_angle(normals, [0.0, 0.0, 1.0])), [0.0, 45.0, 90.0], atol=1e-12)
+    assert vector_angle([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]) == 0.0
+    assert np.isclose(vector_angle([1.0, 0.0, 0.0], [-1e-9, 0.0, 0.0]), np.pi)
 
 
 def test_degenerate_cases_do_not_crash(rng):
