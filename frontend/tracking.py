@@ -206,10 +206,11 @@ class MagicTracker(Tracker):
         """Move the live tracks ``carried`` (mask (N,)) from where the homography carried them to where
         Lucas-Kanade aligns the frame they were last detected in, around that detection, with this frame's
         ``appearance`` (``frontend.polish.polish``: per frame of detection, that frame warped by the pairs'
-        homography first). Returns the mask (N,) of the tracks it confirmed (the others stay live where the
-        homography carried them, unreported); anchoring to the detection keeps errors from adding up from
-        frame to frame. Without ``confirm``'s backward check: checking carried tracks too measured no better
-        (S-HA, circle, 96 runs: a draw; docs/experiments.md, 0.11.0)."""
+        homography first, and a second try from the confirmed ones' homography). Returns the mask (N,) of the
+        tracks it confirmed (the others stay live where the homography carried them, unreported); anchoring to
+        the detection keeps errors from adding up from frame to frame. Without ``confirm``'s backward check:
+        checking carried tracks too measured no better (S-HA, circle, 96 runs: a draw; docs/experiments.md,
+        0.11.0)."""
         config = replace(self.polish, max_return=None)
         confirmed = carried.copy()
         for age in np.unique(self.live_age[carried]):  # the detection was age + 1 frames ago
