@@ -4,14 +4,13 @@ MagicPoint's detections jitter by a pixel or so from frame to frame, and a few t
 detection; both pass a robust homography fit and bend the pose. ``polish`` moves each current point to
 where Lucas-Kanade aligns the keyframe's patch around its partner (starting from the tracked position,
 no pyramid) and drops the pairs it cannot confirm: moved ``max_move`` pixels or more, or not aligning back
-to their partner (a forward-backward check, ``max_return``). A pair dropped from its tracked position gets a
-second chance from where the homography of the confirmed pairs puts it (``retry_gate``): a track that snapped
-to a jittering detection frame after frame drifts off its point, while its keyframe patch is still there to
-align. It aligns contrast-normalised
-images (``normalise_contrast``), so brightness, contrast and shading changes between the two frames do not
-bias it, and it first warps the keyframe by the homography the pairs agree on (the dominant plane's), so
-that the patches it compares are seen from about the same viewpoint: the scale, rotation and perspective
-change since the keyframe would bias it too.
+to their partner (a forward-backward check, ``max_return``). It aligns contrast-normalised images
+(``normalise_contrast``), so brightness, contrast and shading changes between the two frames do not bias it,
+and it first warps the keyframe by the homography the pairs agree on (the dominant plane's), so that the
+patches it compares are seen from about the same viewpoint: the scale, rotation and perspective change since
+the keyframe would bias it too. A pair it cannot confirm from its tracked position gets a second try from
+where the homography of the confirmed pairs puts it (``retry_gate``): a track that snapped to a jittering
+detection frame after frame drifts off its point, while its keyframe patch is still there to align.
 """
 
 from __future__ import annotations
@@ -36,7 +35,7 @@ class PolishConfig:
     threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the keyframe before aligning, or
     None to align the keyframe as it is; ``retry_gate``: a pair not confirmed from its tracked position is
     aligned again from where the confirmed pairs' homography puts it, if that lies within this many pixels of
-    the tracked position (None: no second chance)."""
+    the tracked position (None: no second try; nor is there one without the warp, ``warp_threshold`` None)."""
 
     sigma: float = 3.0
     window: int = 15
@@ -76,7 +75,7 @@ def polish(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Align each pair of ``reference_points`` (K, 2) in image ``reference`` and ``current_points`` (K, 2)
     in ``current`` (both from ``normalise_contrast``), the reference warped first by the pairs' homography
-    (``plane_warp``), those it drops again from where the homography of the confirmed ones puts them
+    (``plane_warp``), those it cannot confirm again from where the homography of the confirmed ones puts them
     (``_realign``), then check each the other way: the current image warped by the homography of the
     polished pairs, aligned back into the reference. Returns the polished current points (K, 2) float64 and a
     mask (K,) of the pairs Lucas-Kanade confirmed: converged, inside the image, within ``config.max_move``
@@ -104,10 +103,10 @@ def _realign(
     confirmed: np.ndarray,
     config: PolishConfig,
 ) -> None:
-    """The second chance of ``polish``, in place of ``moved`` (K, 2) and ``confirmed`` (K,): each pair not
+    """The second try of ``polish``, in place of ``moved`` (K, 2) and ``confirmed`` (K,): each pair not
     confirmed whose tracked point lies within ``config.retry_gate`` px of where the homography of the confirmed
-    pairs (at least 8) puts its partner is aligned again from there."""
-    if confirmed.all() or confirmed.sum() < 8:
+    pairs (``plane_warp``: at least 8) puts its partner is aligned again from there."""
+    if confirmed.all():
         return
     H = plane_warp(reference_points[confirmed], moved[confirmed], config.warp_threshold)
     if H is None:
