@@ -386,7 +386,10 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
     if method == "essential":
         return essential_pose(p1, p2, K)
     model, H, inliers_h = select_model(p1, p2, sigma)
-    planar = homography_pose(p1, p2, K, H, previous_t, inliers_h, previous_normal)
+    if H is None:  # select_model's MAGSAC fit failed; homography_pose would repeat it
+        planar = _failed(len(p1), "homography estimation failed")
+    else:
+        planar = homography_pose(p1, p2, K, H, previous_t, inliers_h, previous_normal)
     general = None
     if model == "essential":
         general = essential_pose(p1, p2, K)
@@ -394,7 +397,7 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
             return general
     if not planar.ok:  # no pose from the plane: the essential matrix's
         return general if general is not None else essential_pose(p1, p2, K)
-    if H is None or planar.rotation_only:
+    if planar.rotation_only:
         return planar
     off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
     if off_plane.sum() < OFF_PLANE_MARGIN:  # too few pairs off the plane to contradict it: spare fitting E

@@ -127,20 +127,19 @@ def _align_pairs(
     config: PolishConfig,
     warp: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One direction of ``polish``: the current points (K, 2) Lucas-Kanade moves to and the mask (K,) of those
-    it confirmed (converged, inside the image, moved less than ``config.max_move`` pixels). The reference is
-    warped by ``warp`` (3, 3), or where None by the homography the pairs agree on (``plane_warp``)."""
+    """One direction of ``polish`` (points float64 (K, 2), as ``polish`` makes them): the current points (K, 2)
+    Lucas-Kanade moves to from ``current_points`` and the mask (K,) of those it confirmed (converged, inside the
+    image, moved less than ``config.max_move`` pixels). The reference is warped by ``warp`` (3, 3), or where None
+    by the homography the pairs agree on (``plane_warp``)."""
     if len(reference_points) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
-    reference_points = np.asarray(reference_points, np.float64)
-    start = np.asarray(current_points, np.float64).reshape(-1, 2)
-    H = warp if warp is not None else plane_warp(reference_points, start, config.warp_threshold)
+    H = warp if warp is not None else plane_warp(reference_points, current_points, config.warp_threshold)
     if H is not None:
         h, w = current.shape
         reference = cv2.warpPerspective(reference, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         reference_points = warp_points(reference_points, H)
-    moved, confirmed = _lucas_kanade(reference, current, reference_points, start, config.window)
-    confirmed &= np.linalg.norm(moved - start, axis=1) < config.max_move
+    moved, confirmed = _lucas_kanade(reference, current, reference_points, current_points, config.window)
+    confirmed &= np.linalg.norm(moved - current_points, axis=1) < config.max_move
     confirmed &= in_image(moved, current.shape)
     return moved, confirmed
 
