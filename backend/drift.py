@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.geometry import path_length, rotation_angle
 
 
@@ -54,9 +55,9 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
     """All drift figures: ATE RMSE (SE3, Sim3), RPE means (translation, rotation in degrees) and the
     final position error as % of the ground-truth path length (no alignment: both start together)."""
     if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
-        raise ValueError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
+        raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
     if len(estimate) < 2:
-        raise ValueError("drift needs at least 2 poses")
+        raise InputError("drift needs at least 2 poses")
     rpe_t, rpe_r = rpe(estimate, truth, delta)
     length = path_length(truth)
     final = np.linalg.norm(estimate[-1, :3, 3] - truth[-1, :3, 3])

@@ -13,19 +13,13 @@ Keys passed to ``update(keep=...)`` (the keyframes still measured against) stay 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable
 
 import gtsam
 import numpy as np
 
-
-@dataclass(frozen=True)
-class GraphConfig:
-    prior_sigmas: tuple[float, ...] = (1e-4,) * 6
-    huber_k: float = 1.345
-    relinearize_threshold: float = 0.001
-    window: int | None = 50  # frames a pose stays after it was last used; None: never marginalised
+from deepslam.backend.config import GraphConfig
+from deepslam.errors import InputError
 
 
 def measurement_sigmas(
@@ -53,7 +47,7 @@ class PoseGraph:
 
     def __init__(self, first_pose: np.ndarray, config: GraphConfig = GraphConfig()):
         if config.window is not None and config.window < 1:
-            raise ValueError(f"the graph's window must be at least 1 frame (or None), got {config.window}")
+            raise InputError(f"the graph's window must be at least 1 frame (or None), got {config.window}")
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(config.relinearize_threshold)
         params.relinearizeSkip = 1  # check every update (gtsam's default skips 10)
@@ -104,7 +98,7 @@ class PoseGraph:
         window (ValueError otherwise)."""
         for key in (key_1, key_2):
             if not self.in_window(key):
-                raise ValueError(f"pose {key} has left the graph's window; keep it with update(keep=...)")
+                raise InputError(f"pose {key} has left the graph's window; keep it with update(keep=...)")
         noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k),
             gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, np.float64)),
@@ -152,6 +146,6 @@ class PoseGraph:
         """Levenberg-Marquardt on the whole graph from the initial guesses, for cross-checking ISAM2
         (``window=None`` only: a windowed graph no longer holds what it marginalised)."""
         if self.graph is None or self.initial is None:
-            raise ValueError("batch_solve needs the whole graph: make the PoseGraph with GraphConfig(window=None)")
+            raise InputError("batch_solve needs the whole graph: make the PoseGraph with GraphConfig(window=None)")
         result = gtsam.LevenbergMarquardtOptimizer(self.graph, self.initial).optimize()
         return np.stack([result.atPose3(k).matrix() for k in range(self.count)])

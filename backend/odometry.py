@@ -7,9 +7,10 @@ or that shares too few tracks with it (or too few the front-end confirms: ``Trac
 next keyframe. A measured pose that turns more than ``max_rotation_jump`` degrees away from the previous
 frame's estimate gives way to the homography's or the essential matrix's pose where that one agrees with it.
 
-Frames come from any source (a simulator or a replayed log) as ``InputFrame``s; the odometry needs no
-simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
-truth (the usual convention of monocular VO evaluation); ``scale="plane"`` keeps metric scale without
+Frames come from any source (a camera, a simulator or a replayed log) as images with their K; the odometry
+needs no simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
+truth that the caller passes in as ``step_lengths`` (the usual convention of monocular VO evaluation);
+``scale="plane"`` keeps metric scale without
 ground truth from a known initial distance to the dominant plane (like a known camera height), which
 homography decompositions (t / d) carry from frame to frame; ``scale="none"`` does the same with that
 distance taken as the unit of length: the trajectory up to scale.
@@ -20,105 +21,30 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from functools import partial
-from typing import Literal, get_args
+from typing import Callable
 
 import numpy as np
 
 from deepslam.backend import relpose
-from deepslam.backend.graph import GraphConfig, PoseGraph, measurement_sigmas
-from deepslam.frontend.tracking import Tracker, Tracks, Truth
+from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
+from deepslam.backend.graph import PoseGraph, measurement_sigmas
+from deepslam.errors import InputError
+from deepslam.frontend.tracking import Tracker, Tracks
 from deepslam.geometry import rotation_angle, vector_angle
 
-Scale = Literal["gt", "plane", "none"]
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
-MAX_TURN_OF_TRANSLATION = 60.0  # degrees a fallback's translation may lie from the motion so far
-SCALES: tuple[str, ...] = get_args(Scale)
 
 
-@dataclass
-class InputFrame:
-    """image uint8 (H, W); K (3, 3); stamp_ns int; T_world_cam (4, 4) ground truth or None;
-    truth: landmark projections for the oracle front-end, or None; depth (H, W) true z per pixel, or
-    None (for measuring the front-end against the simulator; the odometry does not read it)."""
-
-    image: np.ndarray
-    K: np.ndarray
-    stamp_ns: int
-    T_world_cam: np.ndarray | None = None
-    truth: Truth | None = None
-    depth: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class OdometryConfig:
-    """Every documented field is an option of ``deepslam run`` and ``deepslam replay``."""
-
-    method: relpose.Method = field(
-        default="auto",
-        metadata={
-            "help": "relative pose: auto (for each pair of frames, ORB-SLAM's scores choose a homography, the "
-            "dominant plane, or an essential matrix, which also wins where pairs off the plane contradict the "
-            "homography's pose), homography, essential, or pycolmap"
-        },
-    )
-    scale: Scale = field(
-        default="gt",
-        metadata={
-            "help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane; "
-            "none = up to scale (the plane's distance taken as 1; drift after Sim(3) alignment only)"
-        },
-    )
-    plane_distance: float | None = field(
-        default=None,
-        metadata={"help": "first camera's distance (m) to the dominant plane for --scale plane (simulation: known)"},
-    )
-    keyframe_parallax: float = field(
-        default=10.0, metadata={"help": "median track motion (px) since the keyframe that makes a new keyframe"}
-    )
-    max_rotation_jump: float = field(
-        default=10.0,
-        metadata={
-            "help": "where a measured pose turns more than this many degrees away from the previous frame's estimate "
-            "(both seen from the same keyframe), the homography's or the essential matrix's pose is taken instead if "
-            f"it agrees with that estimate (rotation within this, translation within {MAX_TURN_OF_TRANSLATION:g} deg); "
-            "raise it for cameras that turn this fast between frames, 0 turns it off",
-            "min": 0,
-        },
-    )
-    min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
-    min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
-    reinitialise_after: int = 3  # this many lost frames in a row: the current frame becomes the keyframe
-    covariance: bool = True  # compute the latest pose's marginal covariance every frame
-    graph: GraphConfig = GraphConfig()  # the pose graph's noise and window
-
-    def __post_init__(self):
-        if self.method not in relpose.METHODS:
-            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(relpose.METHODS)}")
-        if self.scale not in SCALES:
-            raise ValueError(f"unknown scale {self.scale!r}; expected one of {', '.join(SCALES)}")
-        if not (
-            self.keyframe_parallax > 0 and self.min_parallax >= 0 and self.min_shared_tracks >= relpose.MIN_MATCHES
-        ):
-            raise ValueError(
-                f"keyframe parallax must be positive, min parallax at least 0 and min shared tracks at least "
-                f"{relpose.MIN_MATCHES}, got {self.keyframe_parallax}, {self.min_parallax}, {self.min_shared_tracks}"
-            )
-        if self.plane_distance is not None and not self.plane_distance > 0:
-            raise ValueError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
-        if not self.max_rotation_jump >= 0:
-            raise ValueError(f"the largest rotation jump must be at least 0 degrees, got {self.max_rotation_jump}")
-        if self.reinitialise_after < 1:
-            raise ValueError(f"reinitialise_after must be at least 1, got {self.reinitialise_after}")
+StepLengths = Callable[[int, int], float]
+"""The true distance (m) between the cameras of frames i and j (indices in processing order)."""
 
 
 @dataclass(frozen=True)
 class _Kept:
-    """What the odometry keeps of a frame it may still measure against: K (3, 3), the image's (H, W) and
-    its ground-truth pose (4, 4) or None."""
+    """What the odometry keeps of a frame it may still measure against: K (3, 3) and the image's (H, W)."""
 
     K: np.ndarray
     shape: tuple[int, int]
-    T_world_cam: np.ndarray | None
 
 
 @dataclass
@@ -169,15 +95,34 @@ def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float
 
 
 class Odometry:
-    """Feed frames in order with ``process``; ``poses`` holds the optimised trajectory so far."""
+    """Feed frames in order with ``process``; ``poses`` holds the optimised trajectory so far.
 
-    def __init__(self, tracker: Tracker, config: OdometryConfig | None = None):
+    Args:
+        tracker: the front-end.
+        config: the odometry's settings.
+        origin: ``T_world_cam`` (4, 4) of the first frame (default: the identity).
+        step_lengths: true step lengths, for ``config.scale == "gt"`` only.
+    """
+
+    def __init__(
+        self,
+        tracker: Tracker,
+        config: OdometryConfig | None = None,
+        origin: np.ndarray | None = None,
+        step_lengths: StepLengths | None = None,
+    ):
         config = config or OdometryConfig()
         if config.scale == "plane" and not config.plane_distance:
-            raise ValueError("scale 'plane' needs the first camera's distance to the dominant plane")
+            raise InputError("scale 'plane' needs the first camera's distance to the dominant plane")
+        if config.scale == "gt" and step_lengths is None:
+            raise InputError(
+                "scale 'gt' takes each step's length from ground truth, which an evaluation passes in "
+                "(step_lengths); without it use scale 'plane' or 'none'"
+            )
         if config.scale == "none":  # the dominant plane's distance is the unit of length
             config = replace(config, plane_distance=1.0)
-        self.tracker, self.config = tracker, config
+        self.tracker, self.config, self.step_lengths = tracker, config, step_lengths
+        self.origin = np.eye(4) if origin is None else np.asarray(origin, np.float64)
         self.graph: PoseGraph | None = None
         self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index
         self.frames = 0
@@ -190,10 +135,7 @@ class Odometry:
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
         if self.config.scale == "gt":
-            a, b = self.history[i][0].T_world_cam, self.history[j][0].T_world_cam
-            if a is None or b is None:
-                raise ValueError("scale 'gt' needs ground-truth poses in every frame")
-            return float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
+            return self.step_lengths(i, j)
         return float(rel.t_over_d or 0.0) * self.plane_distance
 
     def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
@@ -233,81 +175,76 @@ class Odometry:
             if distance > 1e-3:
                 self.plane_distance = distance
 
-    def process(self, frame: InputFrame) -> FrameResult:
-        """Track the frame, measure its pose against the current keyframe, add it to the graph, update."""
+    def process(self, image: np.ndarray, K: np.ndarray) -> FrameResult:
+        """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe,
+        add it to the graph, update."""
         started = time.perf_counter()
-        tracks = self.tracker.track(frame.image, frame.truth)
+        tracks = self.tracker.track(image)
         tracked = time.perf_counter()
         k, self.frames = self.frames, self.frames + 1
-        self.history[k] = (_Kept(frame.K, frame.image.shape, frame.T_world_cam), tracks)
+        self.history[k] = (_Kept(K, image.shape), tracks)
         if k == 0:
-            first = frame.T_world_cam if frame.T_world_cam is not None else np.eye(4)
-            self.graph = PoseGraph(first, self.config.graph)
-            return FrameResult(
-                0,
-                tracks,
-                None,
-                first,
-                None,
-                np.zeros((0, 2), np.int64),
-                None,
-                0,
-                {"frontend": 1e3 * (tracked - started)},
-                keyframe=True,
-            )
+            self.graph = PoseGraph(self.origin, self.config.graph)
+            no_pairs = np.zeros((0, 2), np.int64)
+            timings = {"frontend": 1e3 * (tracked - started)}
+            return FrameResult(0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True)
         kf = self._reference(k, tracks)
         rel, T, pairs, measured_points = self._measure(kf, k)
-        parallax = self._parallax(kf, k, pairs)
         measured = time.perf_counter()
-        if rel.ok:
-            sigmas = measurement_sigmas(
-                int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
-            )
-            self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
-        else:  # keep the graph connected: no motion since the last frame, very uncertain
-            T = np.linalg.inv(self.graph.pose(kf)) @ self.graph.pose(k - 1)
-            sigmas = np.array([0.5] * 3 + [1.0] * 3)
-        self.graph.add_pose(k, self.graph.pose(kf) @ T)
-        self.graph.add_between(kf, k, T, sigmas)
-        self._link_previous_keyframe(k, kf)
-        self.graph.update(keep=[key for key in (self.keyframe, self.previous_keyframe) if key is not None])
-        current = self.keyframe
-        current_pairs = shared_tracks(self.history[current][1], tracks)
-        self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
-        if self.lost_in_a_row >= self.config.reinitialise_after:  # tracking starts again from this frame
-            self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
-        elif (
-            self._parallax(current, k, current_pairs) >= self.config.keyframe_parallax
-            or len(current_pairs) < self.config.min_shared_tracks
-            or (kf == current and len(pairs) < self.config.min_shared_tracks)  # few confirmed by the front-end
-        ):
-            if rel.ok and kf == current:
-                self._update_plane_distance(rel, T)
-            self.previous_keyframe, self.keyframe = current, k
+        T = self._add_measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
+        self._update_keyframes(k, kf, rel, T, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
         pose = self.graph.pose(k)
         optimised = time.perf_counter()
         covariance = self.graph.covariance(k) if self.config.covariance else None
-        return FrameResult(
-            k,
-            tracks,
-            rel,
-            pose,
-            covariance,
-            pairs,
-            T,
-            kf,
-            {
-                "frontend": 1e3 * (tracked - started),
-                "relative_pose": 1e3 * (measured - tracked),
-                "graph": 1e3 * (optimised - measured),
-                "covariance": 1e3 * (time.perf_counter() - optimised),
-            },
-            keyframe=self.keyframe == k,
-            measured_points=measured_points,
-        )
+        timings = {
+            "frontend": 1e3 * (tracked - started),
+            "relative_pose": 1e3 * (measured - tracked),
+            "graph": 1e3 * (optimised - measured),
+            "covariance": 1e3 * (time.perf_counter() - optimised),
+        }
+        return FrameResult(k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points)
+
+    def _add_measurement(
+        self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float
+    ) -> np.ndarray:
+        """Add frame k to the graph with its measured pose ``T`` (4, 4) from keyframe kf (where no pose could be
+        measured: no motion since frame k - 1, very uncertain, so that the graph stays connected), link it
+        to the keyframe before, and update; returns the relative pose that went into the graph."""
+        if rel.ok:
+            sigmas = measurement_sigmas(
+                int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
+            )
+            self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
+        else:
+            T = np.linalg.inv(self.graph.pose(kf)) @ self.graph.pose(k - 1)
+            sigmas = np.array([0.5] * 3 + [1.0] * 3)
+        self.graph.add_pose(k, self.graph.pose(kf) @ T)
+        self.graph.add_between(kf, k, T, sigmas)
+        self._link_previous_keyframe(k, kf)
+        self.graph.update(keep=[key for key in (self.keyframe, self.previous_keyframe) if key is not None])
+        return T
+
+    def _update_keyframes(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: int) -> None:
+        """The keyframe policy. After ``reinitialise_after`` lost frames in a row tracking starts again from
+        frame k; otherwise frame k becomes the keyframe when its tracks moved ``keyframe_parallax`` pixels
+        since the current keyframe, share fewer than ``min_shared_tracks`` with it, or, measured against it,
+        fewer than that many pairs were ``confirmed`` by the front-end. The plane's distance moves on with it."""
+        current, config = self.keyframe, self.config
+        current_pairs = shared_tracks(self.history[current][1], self.history[k][1])
+        self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
+        if self.lost_in_a_row >= config.reinitialise_after:
+            self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
+        elif (
+            self._parallax(current, k, current_pairs) >= config.keyframe_parallax
+            or len(current_pairs) < config.min_shared_tracks
+            or (kf == current and confirmed < config.min_shared_tracks)
+        ):
+            if rel.ok and kf == current:
+                self._update_plane_distance(rel, T)
+            self.previous_keyframe, self.keyframe = current, k
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
         """Median motion (pixels) of the tracks shared by frames i and j."""

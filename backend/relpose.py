@@ -15,16 +15,14 @@ or, for the homography, ``t / d`` with d the distance of camera 1 to the plane.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, get_args
 
 import cv2
 import numpy as np
 
+from deepslam.backend.config import METHODS, MIN_MATCHES
+from deepslam.errors import InputError
 from deepslam.geometry import vector_angle
 
-Method = Literal["auto", "homography", "essential", "pycolmap"]
-METHODS: tuple[str, ...] = get_args(Method)
-MIN_MATCHES = 8  # fewer matches than this: no relative pose
 STATIC_FLOW_PX = 0.3  # a median flow below this (px): no motion
 MIN_INLIER_RATIO = 0.3  # a model that explains a smaller share of the matches is not trusted
 MIN_SPREAD_PX = 2.0  # matched points whose second principal spread is below this (px) are collinear
@@ -132,36 +130,24 @@ def homography_pose(
         inliers = mask.ravel().astype(bool)
     elif inliers is None:
         inliers = np.ones(len(p1), bool)
-    count, rotations, translations, normals = cv2.decomposeHomographyMat(H, K)
-    solutions = (rotations, translations, normals)
-    finite = [i for i in range(count) if all(np.isfinite(part[i]).all() for part in solutions)]
-    if not finite:  # OpenCV's closed form divides by zero on some exact homographies (noise-free matches)
+    solutions = _finite_decompositions(H, K)
+    if not solutions:  # OpenCV's closed form divides by zero on some exact homographies (noise-free matches)
         return _failed(len(p1), "the homography's decomposition is not finite")
-    count, (rotations, translations, normals) = len(finite), ([part[i] for i in finite] for part in solutions)
+    rotations, translations, normals = solutions
     visible = _visible_shares(rotations, normals, _normalised(p1[inliers], K), _normalised(p2[inliers], K))
-    candidates = [i for i in range(count) if visible[i] >= VISIBLE_SHARE] or list(range(count))
+    candidates = [i for i in range(len(rotations)) if visible[i] >= VISIBLE_SHARE] or list(range(len(rotations)))
     # OpenCV's normal satisfies n . X_1 = d > 0 on the plane: a plane in front of camera 1 has n_z > 0
     candidates = [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
-    magnitudes = [np.linalg.norm(translations[i]) for i in candidates]
-    rotation_only = max(magnitudes) < 1e-3
-    if not rotation_only and len(candidates) > 1:
-        off1, off2 = p1[~inliers], p2[~inliers]
-        fits = {i: _off_plane_fits(rotations[i], translations[i], off1, off2, K) for i in candidates}
-        candidates.sort(key=lambda i: fits[i], reverse=True)
-        if fits[candidates[0]] - fits[candidates[1]] >= OFF_PLANE_MARGIN:
-            candidates = candidates[:1]
-    if previous_normal is not None and not rotation_only and len(candidates) > 1:
-        same = _same_plane([normals[i].ravel() for i in candidates], previous_normal)
-        candidates = [candidates[same]] if same is not None else candidates
+    rotation_only = max(np.linalg.norm(translations[i]) for i in candidates) < 1e-3
+    if not rotation_only:
+        candidates = _fitting_off_plane(candidates, rotations, translations, p1[~inliers], p2[~inliers], K)
+        if previous_normal is not None and len(candidates) > 1:
+            same = _same_plane([normals[i].ravel() for i in candidates], previous_normal)
+            candidates = [candidates[same]] if same is not None else candidates
     most = max(visible[i] for i in candidates)  # undecided: the solutions with the most points in front
     candidates = [i for i in candidates if visible[i] == most]
     if previous_t is not None and not rotation_only:
-        # X_2 = R X_1 + t: camera 2's centre in frame 1 is -R^T t; compare directions
-        def agreement(i):
-            centre = -rotations[i].T @ translations[i].ravel()
-            return float(centre @ previous_t / (np.linalg.norm(centre) * np.linalg.norm(previous_t) + 1e-12))
-
-        candidates.sort(key=agreement, reverse=True)
+        candidates = _along(candidates, rotations, translations, previous_t)
     best = candidates[0]
     return RelativePose(
         _between(rotations[best], translations[best]),
@@ -171,6 +157,39 @@ def homography_pose(
         normals[best].ravel(),
         float(np.linalg.norm(translations[best])),
     )
+
+
+def _finite_decompositions(H: np.ndarray, K: np.ndarray) -> tuple[list, list, list] | None:
+    """OpenCV's decompositions of H (3, 3) given K: rotations (3, 3), translations (3, 1) over the plane's
+    distance and plane normals (3, 1) in camera 1, of the solutions that are finite; None if none is."""
+    count, *solutions = cv2.decomposeHomographyMat(H, K)
+    finite = [i for i in range(count) if all(np.isfinite(part[i]).all() for part in solutions)]
+    if not finite:
+        return None
+    rotations, translations, normals = ([part[i] for i in finite] for part in solutions)
+    return rotations, translations, normals
+
+
+def _fitting_off_plane(
+    candidates: list[int], rotations: list, translations: list, off1: np.ndarray, off2: np.ndarray, K: np.ndarray
+) -> list[int]:
+    """``candidates`` ordered by how many pairs off the plane, ``off1`` -> ``off2`` (N, 2) px, fit their
+    epipolar geometry; only the first where it fits ``OFF_PLANE_MARGIN`` more than any other."""
+    if len(candidates) < 2:
+        return candidates
+    fits = {i: _off_plane_fits(rotations[i], translations[i], off1, off2, K) for i in candidates}
+    candidates = sorted(candidates, key=lambda i: fits[i], reverse=True)
+    return candidates[:1] if fits[candidates[0]] - fits[candidates[1]] >= OFF_PLANE_MARGIN else candidates
+
+
+def _along(candidates: list[int], rotations: list, translations: list, previous_t: np.ndarray) -> list[int]:
+    """``candidates`` ordered by how well camera 2's direction from camera 1 agrees with ``previous_t`` (3,)."""
+
+    def agreement(i):  # X_2 = R X_1 + t: camera 2's centre in frame 1 is -R^T t; compare directions
+        centre = -rotations[i].T @ translations[i].ravel()
+        return float(centre @ previous_t / (np.linalg.norm(centre) * np.linalg.norm(previous_t) + 1e-12))
+
+    return sorted(candidates, key=agreement, reverse=True)
 
 
 def _visible_shares(
@@ -342,10 +361,10 @@ def estimate(
     gives "static" (identity); pure rotation is flagged ``rotation_only`` (no translation).
     """
     if method not in METHODS:
-        raise ValueError(f"unknown relative pose method {method!r}; expected one of {', '.join(METHODS)}")
+        raise InputError(f"unknown relative pose method {method!r}; expected one of {', '.join(METHODS)}")
     p1, p2 = np.asarray(p1, np.float64).reshape(-1, 2), np.asarray(p2, np.float64).reshape(-1, 2)
     if len(p1) != len(p2):
-        raise ValueError(f"p1 and p2 must have the same length, got {len(p1)} and {len(p2)}")
+        raise InputError(f"p1 and p2 must have the same length, got {len(p1)} and {len(p2)}")
     problem = _degenerate(p1, p2, K)
     if problem:
         return _failed(len(p1), problem)

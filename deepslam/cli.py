@@ -12,6 +12,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from deepslam.errors import InputError
 from deepslam.options import add_options, from_args, number_type
 
 log = logging.getLogger("deepslam")
@@ -46,7 +47,7 @@ def _train_magicpoint_ha(args: argparse.Namespace) -> None:
 
 
 def _train_magicwarp(args: argparse.Namespace) -> None:
-    from deepslam.frontend.magicwarp import MagicWarpConfig
+    from deepslam.frontend.config import MagicWarpConfig
     from deepslam.frontend.training.magicwarp import TrainConfig, run
 
     run(args.out, _config(args, TrainConfig), _config(args, MagicWarpConfig))
@@ -133,7 +134,7 @@ def _detectors(names: list[str] | None, weights: list[Path] | None = None, **ext
 
 def _eval_pipeline(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix, save_plots
-    from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.frontend.config import TrackerConfig
 
     _check_folder(args.out)
 
@@ -145,7 +146,7 @@ def _bench(args: argparse.Namespace) -> None:
     _check_folder(args.out)
     if args.target == "pipeline":
         from deepslam.backend.evaluation.bench import bench_pipeline, save_plots
-        from deepslam.frontend.tracking import TrackerConfig
+        from deepslam.frontend.config import TrackerConfig
 
         timings = bench_pipeline(args.frames, tracker_config=_config(args, TrackerConfig), rounds=args.rounds)
         units = {
@@ -173,9 +174,9 @@ def _print_drift(drift: dict, scale: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> None:
+    from deepslam.backend.config import OdometryConfig
     from deepslam.backend.evaluation.runs import simulate
-    from deepslam.backend.odometry import OdometryConfig
-    from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.frontend.config import TrackerConfig
     from deepslam.sim.scenario import ScenarioConfig
 
     configs = _config(args, ScenarioConfig), _config(args, TrackerConfig), _config(args, OdometryConfig)
@@ -186,10 +187,10 @@ def _run(args: argparse.Namespace) -> None:
 
 
 def _replay(args: argparse.Namespace) -> None:
+    from deepslam.backend.config import OdometryConfig
     from deepslam.backend.evaluation.runs import replay
-    from deepslam.backend.odometry import OdometryConfig
-    from deepslam.frontend.tracking import TrackerConfig
-    from deepslam.logs.sources import SourceOptions
+    from deepslam.frontend.config import TrackerConfig
+    from deepslam.inputs.source import SourceOptions
 
     configs = _config(args, TrackerConfig), _config(args, OdometryConfig)
     sources = _config(args, SourceOptions)
@@ -232,7 +233,7 @@ def _recover(args: argparse.Namespace) -> None:
 # ---------------------------------------------------------------- the parser
 
 
-class _UsageError(ValueError):
+class _UsageError(InputError):
     """Bad options found after parsing: exit 2, as argparse's own."""
 
 
@@ -257,12 +258,15 @@ _COMMON.add_argument("-q", "--quiet", action="store_true", help="print results a
 _COMMON.add_argument("-v", "--verbose", action="store_true", help="also print debugging notes")
 
 
-def _train_commands(commands) -> None:
-    from deepslam.frontend.magicwarp import MagicWarpConfig
+def _train_commands(commands, detailed: bool) -> None:
+    """``train`` and its networks; their options (whose configs import torch) only when ``detailed``."""
+    train = commands.add_parser("train", help="train a network (resumes from its last checkpoint)")
+    if not detailed:
+        return
+    from deepslam.frontend.config import MagicWarpConfig
     from deepslam.frontend.training import magicpoint, magicwarp
     from deepslam.frontend.training.adaptation import AdaptConfig
 
-    train = commands.add_parser("train", help="train a network (resumes from its last checkpoint)")
     nets = train.add_subparsers(dest="network", required=True, metavar="NETWORK")
     point = _command(
         nets, "magicpoint", "train MagicPoint S or L on Synthetic Shapes", _train_magicpoint, magicpoint.TrainConfig
@@ -297,9 +301,9 @@ def _train_commands(commands) -> None:
 
 
 def _pipeline_commands(commands) -> None:
-    from deepslam.backend.odometry import OdometryConfig
-    from deepslam.frontend.tracking import TrackerConfig
-    from deepslam.logs.sources import SourceOptions
+    from deepslam.backend.config import OdometryConfig
+    from deepslam.frontend.config import TrackerConfig
+    from deepslam.inputs.source import SourceOptions
     from deepslam.sim.scenario import ScenarioConfig
 
     run = _command(
@@ -345,8 +349,8 @@ def _pipeline_commands(commands) -> None:
 
 
 def _eval_commands(commands) -> None:
-    from deepslam.backend.evaluation.sweep import SweepConfig
-    from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.backend.evaluation.config import SweepConfig
+    from deepslam.frontend.config import TrackerConfig
     from deepslam.parallel import Workers
 
     evaluate = commands.add_parser("eval", help="the paper's evaluations, and the pipeline's drift over a sweep")
@@ -422,7 +426,7 @@ def _eval_commands(commands) -> None:
 
 
 def _bench_commands(commands) -> None:
-    from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.frontend.config import BENCH_REPEATS, TrackerConfig
 
     bench = commands.add_parser("bench", help="timings on one CPU thread, beside the paper's")
     targets = bench.add_subparsers(dest="target", required=True, metavar="TARGET")
@@ -431,7 +435,9 @@ def _bench_commands(commands) -> None:
         ("warp", "MagicWarp forward pass (BatchNorm folded)"),
     ):
         sub = _command(targets, target, text, _bench)
-        sub.add_argument("--repeats", type=number_type(int, 1), default=100, help="timed repetitions (median reported)")
+        sub.add_argument(
+            "--repeats", type=number_type(int, 1), default=BENCH_REPEATS, help="timed repetitions (median reported)"
+        )
         sub.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
     pipeline = _command(
         targets,
@@ -453,11 +459,14 @@ def _bench_commands(commands) -> None:
     pipeline.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The command line; with ``argv``, the training options only where it asks to train, so that every
+    other command and ``--help`` start without torch (without ``argv``: all of it)."""
+    words = ["train"] if argv is None else [word for word in argv if not word.startswith("-")]
     parser = argparse.ArgumentParser(prog="deepslam", description=__doc__, formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"deepslam {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    _train_commands(commands)
+    _train_commands(commands, detailed=words[:1] == ["train"])
     _pipeline_commands(commands)
     _eval_commands(commands)
     _bench_commands(commands)
@@ -487,7 +496,8 @@ def _terminate(number, frame) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the command; exit status 0, 1 for a runtime error, 2 for a usage error, 130 on Ctrl-C and
     143 on SIGTERM."""
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     _configure_logging(args)
     signal.signal(signal.SIGTERM, _terminate)

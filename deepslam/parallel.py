@@ -13,6 +13,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Callable, Sequence, TypeVar
 
+from deepslam.errors import DeepslamError, InputError
 from deepslam.progress import progress_bar
 
 Item = TypeVar("Item")
@@ -29,10 +30,10 @@ class Workers:
 
     def __post_init__(self):
         if self.jobs < 1:
-            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
+            raise InputError(f"--jobs must be at least 1, got {self.jobs}")
 
 
-class PieceFailed(RuntimeError):
+class PieceFailed(DeepslamError, RuntimeError):
     """A piece of a parallel evaluation raised; the message names the piece."""
 
 
@@ -89,7 +90,7 @@ def _on_ray(fn, items, workers: Workers, describe, progress) -> list:
     try:
         import ray
     except ImportError:
-        raise ValueError('--ray needs Ray: pip install -e ".[ray]" (or pip install ray)') from None
+        raise InputError('--ray needs Ray: pip install -e ".[ray]" (or pip install ray)') from None
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if workers.ray_address != "local":
         _check_reachable(workers.ray_address)
@@ -100,7 +101,7 @@ def _on_ray(fn, items, workers: Workers, describe, progress) -> list:
         else:
             ray.init(address=workers.ray_address, log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as error:
-        raise ValueError(f"cannot reach a Ray cluster at {workers.ray_address}: {error}") from None
+        raise InputError(f"cannot reach a Ray cluster at {workers.ray_address}: {error}") from None
     try:
         remote = ray.remote(num_cpus=1)(_ray_piece)
         refs = [remote.remote(fn, item) for item in items]
@@ -129,7 +130,7 @@ def _check_reachable(address: str, timeout_s: float = 3.0) -> None:
         with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s):
             return
     except (OSError, ValueError):
-        raise ValueError(
+        raise InputError(
             f"cannot reach a Ray cluster at {address} (give host:port as `ray start --head` printed it)"
         ) from None
 

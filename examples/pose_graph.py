@@ -5,7 +5,8 @@ python examples/pose_graph.py
 
 import numpy as np
 
-from deepslam.backend.graph import GraphConfig, PoseGraph
+from deepslam.backend.config import GraphConfig
+from deepslam.backend.graph import PoseGraph
 from deepslam.sim.camera import pose
 
 step = pose(np.array([0.0, 0.1, 0.0]), np.array([0.5, 0.0, 0.0]))  # move 0.5 m, turn 0.1 rad

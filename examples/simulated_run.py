@@ -3,9 +3,9 @@
 python examples/simulated_run.py
 """
 
+from deepslam.backend.config import OdometryConfig
 from deepslam.backend.evaluation.runs import simulate
-from deepslam.backend.odometry import OdometryConfig
-from deepslam.frontend.tracking import TrackerConfig
+from deepslam.frontend.config import TrackerConfig
 from deepslam.logs.reader import read_frames
 from deepslam.sim.scenario import ScenarioConfig
 

@@ -12,7 +12,8 @@ import argparse
 import numpy as np
 
 from deepslam.backend.evaluation.runs import simulated_frames, true_positions
-from deepslam.frontend.tracking import MagicTracker, TrackerConfig, make_tracker
+from deepslam.frontend.config import TrackerConfig
+from deepslam.frontend.tracking import MagicTracker, make_tracker
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 NEAR_PX = 1.5  # a detection this close to a track's true position repeats it; a continuation this close is right

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.geometry import in_image
 
 CELL = 8
@@ -23,7 +24,7 @@ def points_to_cells_batch(point_sets: list[np.ndarray], size: tuple[int, int]) -
     """Encode several point sets at once; returns float32 (B, 65, H/8, W/8)."""
     h, w = size
     if h % CELL or w % CELL:
-        raise ValueError(f"image size must be divisible by {CELL}, got {size}")
+        raise InputError(f"image size must be divisible by {CELL}, got {size}")
     hc, wc = h // CELL, w // CELL
     cells = np.zeros((len(point_sets), CELL * CELL + 1, hc, wc), np.float32)
     counts = np.zeros((len(point_sets), hc, wc), np.float32)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.frontend.points import check_image, extract_points
 
 
@@ -25,7 +26,7 @@ class ClassicalDetector:
 
     def __post_init__(self):
         if self.kind not in DETECTORS:
-            raise ValueError(f"unknown classical detector {self.kind!r}; expected one of {', '.join(DETECTORS)}")
+            raise InputError(f"unknown classical detector {self.kind!r}; expected one of {', '.join(DETECTORS)}")
 
     def score_map(self, image: np.ndarray) -> np.ndarray:
         """The detector's corner response, float32 (H, W)."""

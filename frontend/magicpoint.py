@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from deepslam.errors import InputError
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.nets import fold_batchnorm, load_network, pooling, vgg_block
 from deepslam.frontend.points import SUBPIXEL, Subpixel, check_image, extract_points
@@ -102,16 +103,16 @@ class MagicPoint:
         device: str = "cpu",
     ):
         if grid_shifts not in GRID_SHIFTS:
-            raise ValueError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
+            raise InputError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
         if not isinstance(upsample, int) or not 1 <= upsample <= 4:
-            raise ValueError(f"upsample must be an integer from 1 to 4, got {upsample}")
+            raise InputError(f"upsample must be an integer from 1 to 4, got {upsample}")
         if not np.isfinite(threshold) or nms_radius < 0 or border < 0 or (top_k is not None and top_k < 1):
-            raise ValueError(
+            raise InputError(
                 f"the detection threshold must be finite, nms_radius and border at least 0 and top_k at least 1, "
                 f"got {threshold}, {nms_radius}, {border}, {top_k}"
             )
         if subpixel not in SUBPIXEL:
-            raise ValueError(f"subpixel must be one of {', '.join(SUBPIXEL)}, got {subpixel!r}")
+            raise InputError(f"subpixel must be one of {', '.join(SUBPIXEL)}, got {subpixel!r}")
         self.device = torch.device(device)
         self.net = fold_batchnorm(net).to(self.device)
         self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
@@ -122,7 +123,7 @@ class MagicPoint:
         """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint; the
         variant's ``INFERENCE_DEFAULTS`` apply unless ``options`` say otherwise."""
         if variant not in VARIANTS:
-            raise ValueError(f"unknown MagicPoint variant {variant!r}; expected one of {', '.join(VARIANTS)}")
+            raise InputError(f"unknown MagicPoint variant {variant!r}; expected one of {', '.join(VARIANTS)}")
         path = Path(path) if path else WEIGHTS / f"magicpoint_{variant}.pt"
         if not path.exists():
             raise FileNotFoundError(f"no MagicPoint weights at {path}; train them with `deepslam train magicpoint`")
@@ -156,7 +157,23 @@ class MagicPoint:
         )
 
     def detect(self, image: np.ndarray) -> np.ndarray:
-        """Corners float32 (N, 3) [x, y, score] sorted by descending score, in the input's pixels."""
+        """Corners of one image.
+
+        Args:
+            image: uint8 (H, W) grayscale, H and W multiples of 8.
+
+        Returns:
+            float32 (N, 3) [x, y, score], sorted by descending score, in the input's pixels.
+
+        Example:
+            >>> import numpy as np
+            >>> from deepslam.frontend import MagicPoint
+            >>> image = np.zeros((120, 160), np.uint8)
+            >>> image[40:80, 60:100] = 255  # a bright square: four corners
+            >>> points = MagicPoint.pretrained("S-HA").detect(image)
+            >>> points.shape[1], len(points) >= 4
+            (3, True)
+        """
         s = self.upsample
         if s > 1:
             h, w = check_image(image, CELL).shape

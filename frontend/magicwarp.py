@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -11,46 +10,14 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
+from deepslam.errors import InputError
 from deepslam.frontend.cells import CELL, points_to_cells_batch
+from deepslam.frontend.config import MagicWarpConfig
 from deepslam.frontend.nets import fold_batchnorm, load_network, vgg_block
 from deepslam.geometry import fit_homography, in_image, warp_points
 
 WEIGHTS = Path(__file__).parent / "weights"
 MIN_POINTS = 4  # a homography needs four points; fewer in either image and MagicWarp declines
-
-
-@dataclass(frozen=True)
-class MagicWarpConfig:
-    """Encoder widths (``blocks`` VGG blocks per stage, a 2x2 max-pool after each stage), the grid
-    the features are pooled to before the fully connected layers, and the hidden FC width."""
-
-    widths: tuple[int, ...] = field(
-        default=(64, 64, 128, 128, 128, 128),
-        metadata={
-            "help": "encoder widths, --blocks VGG blocks per 2x2 max-pool (a new run only: a resumed run keeps "
-            "its checkpoint's shape)",
-            "min": 1,
-        },
-    )
-    pooled: tuple[int, int] = (3, 5)
-    hidden: int = field(default=512, metadata={"help": "width of the hidden fully connected layer", "min": 1})
-    blocks: int = field(
-        default=2,
-        metadata={
-            "help": "VGG blocks per stage of the encoder; with --init, weights of fewer blocks per stage are "
-            "deepened: the new blocks start as identities",
-            "min": 1,
-        },
-    )
-
-    def __post_init__(self):
-        if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:
-            raise ValueError(f"MagicWarp needs positive widths, pooled grid and hidden width, got {self}")
-        if self.blocks < 1 or len(self.widths) % self.blocks:
-            raise ValueError(
-                f"MagicWarp needs a whole number of stages of at least one block: {len(self.widths)} "
-                f"widths do not make stages of {self.blocks} blocks"
-            )
 
 
 class MagicWarpNet(nn.Module):
@@ -92,7 +59,7 @@ def normalizer(size: tuple[int, int]) -> np.ndarray:
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:
     points = np.asarray(points, np.float64)
     if points.ndim != 2 or points.shape[1] < 2:
-        raise ValueError(f"{name} must be an (N, 2) or (N, 3) array of (x, y[, score]), got shape {points.shape}")
+        raise InputError(f"{name} must be an (N, 2) or (N, 3) array of (x, y[, score]), got shape {points.shape}")
     return points[:, :2]
 
 
@@ -130,23 +97,39 @@ class MagicWarp:
     def estimate(
         self, points_a: np.ndarray, points_b: np.ndarray, image_size: tuple[int, int] = (120, 160), iterations: int = 1
     ) -> np.ndarray:
-        """Homography (3, 3) float64 mapping pixel points of image a to image b, ``H[2, 2] == 1``.
+        """The homography between two point images, regressed by the network.
 
-        With ``iterations`` > 1 it warps ``points_a`` by the estimate so far, estimates again and
-        composes (the paper's H = H2 H1 applied to a). ValueError for fewer than ``MIN_POINTS`` points in
-        either image, non-finite coordinates or points outside the image: no homography is invented.
+        Args:
+            points_a: (N, 2+) pixels (x, y) of image a (extra columns, such as scores, are ignored).
+            points_b: (M, 2+) pixels of image b.
+            image_size: (H, W) of both images.
+            iterations: with more than 1, ``points_a`` are warped by the estimate so far, estimated again
+                and composed (the paper's H = H2 H1 applied to a).
+
+        Returns:
+            ``H_ab`` (3, 3) float64 mapping pixels of a to b, ``H[2, 2] == 1``. ``InputError`` for fewer than
+            ``MIN_POINTS`` points in either image, non-finite coordinates or points outside the image: no
+            homography is invented.
+
+        Example:
+            >>> import numpy as np
+            >>> from deepslam.frontend import MagicWarp
+            >>> points = np.random.default_rng(0).uniform([10, 10], [150, 110], (60, 2))
+            >>> H = MagicWarp.pretrained().estimate(points, points + [4.0, 0.0])  # 4 px to the right
+            >>> bool(abs(H[0, 2] - 4) < 3 and H[2, 2] == 1)
+            True
         """
         if iterations < 1:
-            raise ValueError(f"iterations must be at least 1, got {iterations}")
+            raise InputError(f"iterations must be at least 1, got {iterations}")
         points_a, points_b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
         for name, points in (("points_a", points_a), ("points_b", points_b)):
             if not np.all(np.isfinite(points)):
-                raise ValueError(f"{name} holds non-finite coordinates")
+                raise InputError(f"{name} holds non-finite coordinates")
             outside = int((~in_image(points, image_size)).sum())
             if outside:
-                raise ValueError(f"{name}: {outside} points lie outside the {image_size[0]}x{image_size[1]} image")
+                raise InputError(f"{name}: {outside} points lie outside the {image_size[0]}x{image_size[1]} image")
         if min(len(points_a), len(points_b)) < MIN_POINTS:
-            raise ValueError(
+            raise InputError(
                 f"MagicWarp needs at least {MIN_POINTS} points in each image, got {len(points_a)} and {len(points_b)}"
             )
         H = np.eye(3)
@@ -176,7 +159,7 @@ def refine(
     a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
     current = [guesses] if isinstance(guesses, np.ndarray) and guesses.ndim == 2 else list(guesses)
     if not current:
-        raise ValueError("refine needs at least one guess")
+        raise InputError("refine needs at least one guess")
     for radius in radii:
         pairs = _each_once([match(a, b, H, radius) for H in current], len(b))
         if len(pairs) < 8:
@@ -198,11 +181,27 @@ def _each_once(pairs: list[np.ndarray], count_b: int) -> np.ndarray:
 
 
 def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: float = 4.0) -> np.ndarray:
-    """Index pairs (K, 2) int: warp ``points_a`` by ``H`` into b and snap each to its nearest point of b.
+    """Correspondences without descriptors: warp ``points_a`` by ``H`` into b and snap each to its nearest
+    point of b.
 
     Pairs are taken in order of increasing distance (ties by index in a, then in b), each point used at
     most once (mutually exclusive); pairs farther apart than ``max_dist`` pixels are not matches. The
     candidates within ``max_dist`` come from k-d trees (scipy), not an (N, M) distance matrix.
+
+    Args:
+        points_a: (N, 2+) pixels of image a.
+        points_b: (M, 2+) pixels of image b.
+        H: ``H_ab`` (3, 3).
+        max_dist: the largest distance (px) of a match.
+
+    Returns:
+        int64 (K, 2): indices into ``points_a`` and ``points_b``.
+
+    Example:
+        >>> import numpy as np
+        >>> a = np.array([[10.0, 10.0], [50.0, 20.0]])
+        >>> match(a, a[::-1] + 1.0, np.eye(3)).tolist()
+        [[0, 1], [1, 0]]
     """
     a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
     if len(a) == 0 or len(b) == 0:

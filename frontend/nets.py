@@ -11,6 +11,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from deepslam.errors import InputError
+
 
 def vgg_block(in_channels: int, out_channels: int, kernel_size: int = 3) -> nn.Sequential:
     """Convolution (same padding), BatchNorm, ReLU."""
@@ -127,16 +129,16 @@ def load_checkpoint(path: str | Path, needs: tuple[str, ...] = ("model", "config
     if not path.is_file():
         raise FileNotFoundError(f"no weights or checkpoint file at {path}")
     if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
-        raise ValueError(f"{path} is not a deepslam weights file or checkpoint (not a torch archive)")
+        raise InputError(f"{path} is not a deepslam weights file or checkpoint (not a torch archive)")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, KeyError, struct.error) as error:
         reason = _first_line(error)
-        raise ValueError(f"{path} is not a deepslam weights file or checkpoint, or holds more than tensors and "
+        raise InputError(f"{path} is not a deepslam weights file or checkpoint, or holds more than tensors and "
                          f"plain data; nothing in it was run ({reason})") from None  # fmt: skip
     missing = set(needs) - set(state if isinstance(state, dict) else ())
     if missing:
-        raise ValueError(f"{path} is not a deepslam weights file or checkpoint (no {', '.join(sorted(missing))})")
+        raise InputError(f"{path} is not a deepslam weights file or checkpoint (no {', '.join(sorted(missing))})")
     return state
 
 
@@ -160,7 +162,7 @@ def load_network(path: Path, network: type[nn.Module], config_class: type) -> nn
         net.load_state_dict(weights)
     except (TypeError, RuntimeError) as error:
         name = network.__name__.removesuffix("Net")
-        raise ValueError(f"{path} holds no {name} this version can run ({_first_line(error)})") from None
+        raise InputError(f"{path} holds no {name} this version can run ({_first_line(error)})") from None
     return net
 
 
@@ -170,5 +172,5 @@ def resolve_device(name: str) -> str:
     if name == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: this machine has no CUDA device (use cpu or auto)")
+        raise InputError("--device cuda: this machine has no CUDA device (use cpu or auto)")
     return name

@@ -11,18 +11,20 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from deepslam.errors import InputError
+
 
 def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
     """Validate a grayscale uint8 HxW image (non-empty, sides divisible by ``multiple_of``)."""
     image = np.asarray(image)
     if image.ndim != 2:
-        raise ValueError(f"expected a grayscale HxW image, got an array of shape {image.shape}")
+        raise InputError(f"expected a grayscale HxW image, got an array of shape {image.shape}")
     if image.dtype != np.uint8:
-        raise ValueError(f"expected a uint8 image, got dtype {image.dtype}")
+        raise InputError(f"expected a uint8 image, got dtype {image.dtype}")
     if image.size == 0:
-        raise ValueError(f"expected a non-empty image, got shape {image.shape}")
+        raise InputError(f"expected a non-empty image, got shape {image.shape}")
     if image.shape[0] % multiple_of or image.shape[1] % multiple_of:
-        raise ValueError(f"image height and width must be divisible by {multiple_of}, got {image.shape}")
+        raise InputError(f"image height and width must be divisible by {multiple_of}, got {image.shape}")
     return image
 
 
@@ -119,6 +121,6 @@ def extract_points(
     points = nms_points(np.stack([x, y, scores[y, x]], 1).astype(np.float32), nms_radius)
     points = points[:top_k] if top_k else points
     if refine not in SUBPIXEL:
-        raise ValueError(f"sub-pixel refinement must be one of {', '.join(SUBPIXEL)}, got {refine!r}")
+        raise InputError(f"sub-pixel refinement must be one of {', '.join(SUBPIXEL)}, got {refine!r}")
     refiners = {"none": lambda s, p: p, "parabola": subpixel, "centroid": centroid, "smoothed": smoothed_subpixel}
     return refiners[refine](scores, points)

@@ -17,19 +17,18 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Literal, get_args
+from typing import Callable
 
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
+from deepslam.frontend.config import DETECTOR_PRESETS, FRONTENDS, POINT_BUDGET, TrackerConfig
 from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.magicwarp import MIN_POINTS, MagicWarp, match, refine
 from deepslam.frontend.nets import resolve_device
 from deepslam.frontend.polish import DEFAULT_POLISH, PolishConfig, normalise_contrast, polish
 from deepslam.geometry import in_image, warp_points
-
-Frontend = Literal["magic", "classical", "oracle"]
-FRONTENDS: tuple[str, ...] = get_args(Frontend)
 
 
 @dataclass
@@ -49,14 +48,15 @@ class Tracks:
 
 @dataclass
 class Truth:
-    """Ground truth a simulator can hand to the oracle: visible landmark ids (N,) and pixels (N, 2)."""
+    """What a simulator knows of a frame, for the oracle: visible landmark ids (N,) and pixels (N, 2)."""
 
     ids: np.ndarray
     pixels: np.ndarray
 
 
 class Tracker:
-    """Interface: ``track(image, truth=None) -> Tracks``; ids persist while a point is followed."""
+    """Interface: ``track(image) -> Tracks`` for each frame in order (image uint8 (H, W)); ids persist while
+    a point is followed."""
 
     def __init__(self):
         self.previous = Tracks.empty()
@@ -77,7 +77,7 @@ class Tracker:
         self.previous = Tracks(np.asarray(points, np.float64), ids, np.asarray(scores, np.float64))
         return self.previous
 
-    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+    def track(self, image: np.ndarray) -> Tracks:
         raise NotImplementedError
 
     def confirm(self, reference: Tracks, current: Tracks, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -120,12 +120,12 @@ class MagicTracker(Tracker):
         max_age: int = 20,
         refine: bool = True,
         carry: bool = True,
-        budget: int = 150,
+        budget: int = POINT_BUDGET,
         polish: PolishConfig | None = DEFAULT_POLISH,
     ):
         super().__init__()
         if iterations < 1 or not max_dist > 0 or max_age < 0 or budget < 1:
-            raise ValueError(
+            raise InputError(
                 f"MagicWarp iterations and the budget must be at least 1, max_dist positive and max_age at "
                 f"least 0, got {iterations}, {budget}, {max_dist}, {max_age}"
             )
@@ -152,7 +152,7 @@ class MagicTracker(Tracker):
             return guesses[0] if guesses else self.last_homography
         return refine(self.detections, points, guesses + [self.last_homography, np.eye(3)])
 
-    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+    def track(self, image: np.ndarray) -> Tracks:
         started = time.perf_counter()
         detections = self.detector.detect(image)
         detected = warped = time.perf_counter()
@@ -240,7 +240,7 @@ class MagicTracker(Tracker):
 class ClassicalTracker(Tracker):
     """Shi-Tomasi + pyramidal Lucas-Kanade with a forward-backward check (``fb_max`` pixels)."""
 
-    def __init__(self, budget: int = 150, min_distance: int = 6, fb_max: float = 1.0, quality: float = 0.01):
+    def __init__(self, budget: int = POINT_BUDGET, min_distance: int = 6, fb_max: float = 1.0, quality: float = 0.01):
         super().__init__()
         self.budget, self.min_distance, self.fb_max, self.quality = budget, min_distance, fb_max, quality
         self.previous_image: np.ndarray | None = None
@@ -255,7 +255,7 @@ class ClassicalTracker(Tracker):
         corners = cv2.goodFeaturesToTrack(image, count, self.quality, self.min_distance, mask=mask)
         return np.zeros((0, 2)) if corners is None else corners.reshape(-1, 2).astype(np.float64)
 
-    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
+    def track(self, image: np.ndarray) -> Tracks:
         pairs = np.zeros((0, 2), np.int64)
         kept = np.zeros((0, 2))
         if self.previous_image is not None and len(self.previous.points):
@@ -279,9 +279,12 @@ class ClassicalTracker(Tracker):
 @dataclass
 class OracleTracker(Tracker):
     """True landmark projections with Gaussian pixel noise ``noise_px`` and at most ``budget``
-    points, keeping existing tracks first (ids are the landmark ids)."""
+    points, keeping existing tracks first (ids are the landmark ids). ``landmarks`` returns the visible
+    landmarks of the frame being tracked: an evaluation that has the simulator's truth hands it over
+    (``deepslam.backend.evaluation.truth``)."""
 
-    budget: int = 150
+    landmarks: Callable[[], Truth]
+    budget: int = POINT_BUDGET
     noise_px: float = 0.5
     seed: int = 0
     rng: np.random.Generator = field(init=False)
@@ -290,98 +293,13 @@ class OracleTracker(Tracker):
         super().__init__()
         self.rng = np.random.default_rng(self.seed)
 
-    def track(self, image: np.ndarray, truth: Truth | None = None) -> Tracks:
-        if truth is None:
-            raise ValueError("the oracle front-end needs ground truth (simulated runs only)")
+    def track(self, image: np.ndarray) -> Tracks:
+        truth = self.landmarks()
         tracked = np.isin(truth.ids, self.previous.ids)
         order = np.concatenate([np.nonzero(tracked)[0], self.rng.permutation(np.nonzero(~tracked)[0])])[: self.budget]
         points = truth.pixels[order] + self.rng.normal(0, self.noise_px, (len(order), 2))
         self.previous = Tracks(points, truth.ids[order].astype(np.int64), np.ones(len(order)))
         return self.previous
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """A front-end and its options. The magic front-end runs MagicPoint at the evaluation threshold 0.001
-    with at most 150 points (the oracle's budget), then MagicWarp refined by snapping, and confirms and
-    polishes the pairs each pose is measured from; its detector is one of ``DETECTOR_PRESETS`` (S-HA in
-    one pass by default; S is topped up by S-HA on sparse frames). Every documented field is a ``deepslam run``
-    option."""
-
-    frontend: Frontend = field(
-        default="magic",
-        metadata={"help": "magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections"},
-    )
-    detector: Literal["S", "S-HA"] = field(
-        default="S-HA",
-        metadata={
-            "help": "MagicPoint of the magic front-end: S-HA (adapted to real photographs; one pass) or S "
-            "(Synthetic Shapes only; on the image enlarged 2x with two grid shifts, topped up by S-HA)"
-        },
-    )
-    detector_scale: Literal[1, 2] | None = field(
-        default=None,
-        metadata={
-            "help": "MagicPoint detects on the image enlarged this many times (default: the detector's preset; "
-            "S at scale 1 averages four grid shifts)"
-        },
-    )
-    top_up: bool = field(
-        default=True,
-        metadata={
-            "help": "from a frame where MagicPoint S finds fewer than 40 points (corner-poor walls such as grass) "
-            "until it finds 80 again, add S-HA's detections (--detector S only)"
-        },
-    )
-    warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
-    refine: bool = field(
-        default=True,
-        metadata={
-            "help": "refine MagicWarp's homography by snapping and a robust fit over the pairs it, the no-motion "
-            "and the constant-motion guess snap, so that the motion most detections agree with wins"
-        },
-    )
-    carry: bool | None = field(
-        default=None,
-        metadata={
-            "help": "report a track the detector misses for up to 20 frames, carried by MagicWarp's homography "
-            "and aligned to the frame it was last detected in (default: with --method auto or homography)"
-        },
-    )
-    ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
-    polish: bool = field(
-        default=True,
-        metadata={
-            "help": "confirm and polish the pairs each pose is measured from (a frame and its keyframe) by "
-            "Lucas-Kanade on contrast-normalised images, dropping those it moves 1.5 px or more (after a second "
-            "try from where the confirmed pairs' homography puts them) or that do not align back to their "
-            "keyframe point (magic front-end; --no-polish: correspondences from MagicPoint and MagicWarp alone)"
-        },
-    )
-    polish_warp: bool = field(
-        default=True,
-        metadata={
-            "help": "before polishing, warp the keyframe by the homography its pairs agree on, so that Lucas-Kanade "
-            "compares patches seen from about the same viewpoint (--no-polish-warp: the keyframe as it is)"
-        },
-    )
-    oracle_noise: float = field(
-        default=0.5,
-        metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
-    )
-    device: Literal["auto", "cpu", "cuda"] = field(
-        default="cpu", metadata={"help": "where the magic front-end's networks run: cpu, cuda, or auto"}
-    )
-    budget: int = 150  # points a front-end reports at most
-
-
-DETECTOR_PRESETS: dict[str, dict] = {
-    "S": {"upsample": 2, "grid_shifts": 2, "subpixel": "parabola"},  # S needs the work-arounds on photographs
-    "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "parabola"},  # one pass
-}
-"""How the magic front-end runs each MagicPoint; ``TrackerConfig.detector_scale`` overrides ``upsample``
-(S at scale 1 then averages four grid shifts). S-HA keeps the plain parabola here: its own default, the
-parabola on the smoothed heatmap, localises better alone but drew end to end (S-HA model card)."""
 
 
 @dataclass
@@ -397,7 +315,7 @@ class ToppedUpDetector:
     min_points: int = 40
     enough_points: int = 80
     radius: float = 4.0
-    top_k: int = 150
+    top_k: int = POINT_BUDGET
     topping_up: bool = field(default=False, init=False)  # the last frame was topped up
 
     def detect(self, image: np.ndarray) -> np.ndarray:
@@ -439,7 +357,7 @@ def _polish_config(config: TrackerConfig) -> PolishConfig | None:
     return DEFAULT_POLISH if config.polish_warp else replace(DEFAULT_POLISH, warp_threshold=None)
 
 
-def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = True) -> Tracker:
+def make_tracker(config: TrackerConfig, carry_default: bool = True) -> Tracker:
     """The front-end ``config`` describes, with the shipped networks for "magic"; ``carry_default`` is
     what ``config.carry`` None means (the caller knows whether poses come from the dominant plane)."""
     if config.frontend == "magic":
@@ -460,5 +378,5 @@ def make_tracker(config: TrackerConfig, seed: int = 0, carry_default: bool = Tru
     if config.frontend == "classical":
         return ClassicalTracker(budget=config.budget)
     if config.frontend == "oracle":
-        return OracleTracker(budget=config.budget, noise_px=config.oracle_noise, seed=seed)
-    raise ValueError(f"unknown front-end {config.frontend!r}; expected one of {', '.join(FRONTENDS)}")
+        raise InputError("the oracle front-end needs the simulator's landmarks: evaluation runs only")
+    raise InputError(f"unknown front-end {config.frontend!r}; expected one of {', '.join(FRONTENDS)}")

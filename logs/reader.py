@@ -24,7 +24,9 @@ from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_ros2.decoder import DecoderFactory
 
-from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame, pose_matrix
+from deepslam.errors import InputError
+from deepslam.geometry import pose_matrix
+from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
 from deepslam.logs.schemas import FRAME_TOPICS
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -33,7 +35,7 @@ MAX_RECORD_BYTES = 256 * 2**20  # a record declaring more than this ends the rea
 FIRST_TOPIC = FRAME_TOPICS[0]  # the writer starts every frame with its image
 
 
-class LogError(ValueError):
+class LogError(InputError):
     """A file that is not an MCAP log, or not one this project can replay."""
 
 
@@ -190,7 +192,7 @@ def _apply(frame: dict, topic: str, message) -> None:
     if topic == "/camera/image":
         frame["image"] = cv2.imdecode(np.frombuffer(bytes(message.data), np.uint8), cv2.IMREAD_GRAYSCALE)
         if frame["image"] is None:
-            raise ValueError("the image does not decode")
+            raise InputError("the image does not decode")
     elif topic == "/camera/camera_info":
         frame["K"] = np.array(message.k, np.float64).reshape(3, 3)
     elif topic == "/groundtruth/pose":

@@ -19,8 +19,10 @@ import numpy as np
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer as Ros2Writer
 
+from deepslam.errors import InputError
+from deepslam.geometry import quaternion_from_matrix
 from deepslam.interrupts import held_signals
-from deepslam.logs.frames import LogFrame, quaternion_from_matrix
+from deepslam.logs.frames import LogFrame
 from deepslam.logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
 
 PATH_POSES_AT_KEYFRAMES = 200  # poses of each path published at a keyframe (the whole path at the end)
@@ -55,7 +57,7 @@ def ros_covariance(covariance: np.ndarray, T: np.ndarray) -> list[float]:
     return (rotate @ np.asarray(covariance)[np.ix_(order, order)] @ rotate.T).ravel().tolist()
 
 
-class LogWriteError(ValueError):
+class LogWriteError(InputError):
     """An output path that cannot take a log."""
 
 
@@ -121,92 +123,23 @@ class LogWriter:
             self._write(frame)
 
     def _write(self, frame: LogFrame) -> None:
+        """One frame's messages, topic by topic in a fixed order (each built by its own function)."""
         t = frame.stamp_ns
-        h, w = frame.image.shape
-        ok, png = cv2.imencode(".png", frame.image)
-        if not ok:
-            raise ValueError("could not encode the frame as PNG")
-        self._put("/camera/image", {"header": _header(t, CAMERA_FRAME), "format": "png", "data": png.tobytes()}, t)
-        K = np.asarray(frame.K, np.float64)
-        P = np.hstack([K, np.zeros((3, 1))])
-        self._put(
-            "/camera/camera_info",
-            {
-                "header": _header(t, CAMERA_FRAME),
-                "height": h,
-                "width": w,
-                "distortion_model": "plumb_bob",
-                "d": [0.0] * 5,
-                "k": K.ravel().tolist(),
-                "r": np.eye(3).ravel().tolist(),
-                "p": P.ravel().tolist(),
-                "binning_x": 0,
-                "binning_y": 0,
-                "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
-            },
-            t,
-        )
-        transforms = []
+        self._put("/camera/image", _image_message(frame), t)
+        self._put("/camera/camera_info", _camera_info_message(frame), t)
         if frame.T_groundtruth is not None:
             self._put("/groundtruth/pose", {"header": _header(t, WORLD_FRAME), "pose": _pose(frame.T_groundtruth)}, t)
-            transforms.append(
-                {
-                    "header": _header(t, WORLD_FRAME),
-                    "child_frame_id": GROUNDTRUTH_FRAME,
-                    "transform": _transform(frame.T_groundtruth),
-                }
-            )
         if frame.T_estimate is not None:
             self._put("/estimate/pose", {"header": _header(t, WORLD_FRAME), "pose": _pose(frame.T_estimate)}, t)
-            transforms.append(
-                {
-                    "header": _header(t, WORLD_FRAME),
-                    "child_frame_id": CAMERA_FRAME,
-                    "transform": _transform(frame.T_estimate),
-                }
-            )
             if frame.covariance is not None:
-                self._put(
-                    "/estimate/pose_covariance",
-                    {
-                        "header": _header(t, WORLD_FRAME),
-                        "pose": {
-                            "pose": _pose(frame.T_estimate),
-                            "covariance": ros_covariance(frame.covariance, frame.T_estimate),
-                        },
-                    },
-                    t,
-                )
+                self._put("/estimate/pose_covariance", _covariance_message(frame), t)
+        transforms = _transforms(frame)
         if transforms:
             self._put("/tf", {"transforms": transforms}, t)
         if frame.tracks is not None:
-            tracks = np.asarray(frame.tracks, np.float64).reshape(-1, 4)
-            self._put(
-                "/frontend/tracks",
-                {
-                    "header": _header(t, CAMERA_FRAME),
-                    "x": tracks[:, 0].astype(np.float32).tolist(),
-                    "y": tracks[:, 1].astype(np.float32).tolist(),
-                    "score": tracks[:, 2].astype(np.float32).tolist(),
-                    "id": tracks[:, 3].astype(np.int64).tolist(),
-                },
-                t,
-            )
-        c = frame.correspondences
-        if c is not None:
-            self._put(
-                "/frontend/correspondences",
-                {
-                    "header": _header(t, CAMERA_FRAME),
-                    "reference_stamp": _time(c.reference_stamp_ns),
-                    "reference_index": np.asarray(c.reference_index, np.uint32).tolist(),
-                    "current_index": np.asarray(c.current_index, np.uint32).tolist(),
-                    "model": c.model,
-                    "inliers": int(c.inliers),
-                    "t_ref_cur": np.asarray(c.T_ref_cur, np.float64).ravel().tolist(),
-                },
-                t,
-            )
+            self._put("/frontend/tracks", _tracks_message(frame), t)
+        if frame.correspondences is not None:
+            self._put("/frontend/correspondences", _correspondences_message(frame), t)
         if frame.tracks is not None:
             self._put(
                 "/camera/annotations", self._annotations(t, np.asarray(frame.tracks, np.float64).reshape(-1, 4)), t
@@ -216,13 +149,8 @@ class LogWriter:
                 self._paths[topic].append((t, pose))
         if frame.diagnostics is not None and frame.diagnostics.keyframe:
             self._put_paths(t, PATH_POSES_AT_KEYFRAMES)
-        d = frame.diagnostics
-        if d is not None:
-            self._put("/diagnostics/frame", {"header": _header(t, CAMERA_FRAME), "tracks": int(d.tracks),
-                      "inliers": int(d.inliers), "lost": bool(d.lost), "reason": d.reason,
-                      "correspondence_error_px": float(d.correspondence_error_px),
-                      "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe),
-                      "pair_error_px": float(d.pair_error_px)}, t)  # fmt: skip
+        if frame.diagnostics is not None:
+            self._put("/diagnostics/frame", _diagnostics_message(frame), t)
         self.frames += 1
         self._file.flush()
 
@@ -281,3 +209,82 @@ class LogWriter:
         """A run that ends normally or is interrupted (Ctrl-C, SIGTERM) becomes ``path``; a run that fails
         stays in ``.partial``, leaving whatever ``path`` held."""
         self.close(complete=kind is None or issubclass(kind, KeyboardInterrupt))
+
+
+def _image_message(frame: LogFrame) -> dict:
+    """/camera/image: the frame as a PNG ``CompressedImage``."""
+    ok, png = cv2.imencode(".png", frame.image)
+    if not ok:
+        raise InputError("could not encode the frame as PNG")
+    return {"header": _header(frame.stamp_ns, CAMERA_FRAME), "format": "png", "data": png.tobytes()}
+
+
+def _camera_info_message(frame: LogFrame) -> dict:
+    """/camera/camera_info: the pinhole K the pipeline used (images are already undistorted)."""
+    h, w = frame.image.shape
+    K = np.asarray(frame.K, np.float64)
+    P = np.hstack([K, np.zeros((3, 1))])
+    return {
+        "header": _header(frame.stamp_ns, CAMERA_FRAME),
+        "height": h,
+        "width": w,
+        "distortion_model": "plumb_bob",
+        "d": [0.0] * 5,
+        "k": K.ravel().tolist(),
+        "r": np.eye(3).ravel().tolist(),
+        "p": P.ravel().tolist(),
+        "binning_x": 0,
+        "binning_y": 0,
+        "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
+    }
+
+
+def _covariance_message(frame: LogFrame) -> dict:
+    """/estimate/pose_covariance: the estimate with its covariance in ROS's order and axes."""
+    pose = {"pose": _pose(frame.T_estimate), "covariance": ros_covariance(frame.covariance, frame.T_estimate)}
+    return {"header": _header(frame.stamp_ns, WORLD_FRAME), "pose": pose}
+
+
+def _transforms(frame: LogFrame) -> list[dict]:
+    """/tf: the true camera, then the estimated one, where the frame has them."""
+    poses = ((GROUNDTRUTH_FRAME, frame.T_groundtruth), (CAMERA_FRAME, frame.T_estimate))
+    return [
+        {"header": _header(frame.stamp_ns, WORLD_FRAME), "child_frame_id": child, "transform": _transform(T)}
+        for child, T in poses
+        if T is not None
+    ]
+
+
+def _tracks_message(frame: LogFrame) -> dict:
+    """/frontend/tracks: x, y, score and id of every tracked point."""
+    tracks = np.asarray(frame.tracks, np.float64).reshape(-1, 4)
+    return {
+        "header": _header(frame.stamp_ns, CAMERA_FRAME),
+        "x": tracks[:, 0].astype(np.float32).tolist(),
+        "y": tracks[:, 1].astype(np.float32).tolist(),
+        "score": tracks[:, 2].astype(np.float32).tolist(),
+        "id": tracks[:, 3].astype(np.int64).tolist(),
+    }
+
+
+def _correspondences_message(frame: LogFrame) -> dict:
+    """/frontend/correspondences: the pairs the frame's pose was measured from, and that pose."""
+    c = frame.correspondences
+    return {
+        "header": _header(frame.stamp_ns, CAMERA_FRAME),
+        "reference_stamp": _time(c.reference_stamp_ns),
+        "reference_index": np.asarray(c.reference_index, np.uint32).tolist(),
+        "current_index": np.asarray(c.current_index, np.uint32).tolist(),
+        "model": c.model,
+        "inliers": int(c.inliers),
+        "t_ref_cur": np.asarray(c.T_ref_cur, np.float64).ravel().tolist(),
+    }
+
+
+def _diagnostics_message(frame: LogFrame) -> dict:
+    """/diagnostics/frame: the frame's tracking figures."""
+    d = frame.diagnostics
+    return {"header": _header(frame.stamp_ns, CAMERA_FRAME), "tracks": int(d.tracks), "inliers": int(d.inliers),
+            "lost": bool(d.lost), "reason": d.reason, "correspondence_error_px": float(d.correspondence_error_px),
+            "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe),
+            "pair_error_px": float(d.pair_error_px)}  # fmt: skip

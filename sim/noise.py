@@ -12,6 +12,8 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
+
 Noise = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 
@@ -114,12 +116,12 @@ def apply(image: np.ndarray, rng: np.random.Generator, s: float = 1.0, kind: str
     with pure random noise.
     """
     if kind != "full" and kind not in KINDS:
-        raise ValueError(f"unknown noise kind {kind!r}; expected 'full' or one of {sorted(KINDS)}")
+        raise InputError(f"unknown noise kind {kind!r}; expected 'full' or one of {sorted(KINDS)}")
     if not 0.0 <= s <= 2.0:
-        raise ValueError(f"noise magnitude s must lie in [0, 2], got {s}")
+        raise InputError(f"noise magnitude s must lie in [0, 2], got {s}")
     image = np.asarray(image)
     if image.ndim != 2 or image.dtype != np.uint8:
-        raise ValueError(f"expected a grayscale uint8 HxW image, got {image.dtype} of shape {image.shape}")
+        raise InputError(f"expected a grayscale uint8 HxW image, got {image.dtype} of shape {image.shape}")
     if s == 0.0:
         return image.copy()
     noisy = (full_noise if kind == "full" else KINDS[kind])(image, rng).astype(np.float32)

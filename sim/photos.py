@@ -17,6 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
+
 WORLD_TEXTURES = (
     "camera", "brick", "grass", "gravel", "coins", "text", "page", "clock", "astronaut", "coffee", "chelsea", "rocket",
 )  # fmt: skip
@@ -52,7 +54,7 @@ class Photo:
         """The photograph as uint8 grayscale (H, W); ValueError if it cannot be read."""
         image = _read_builtin(self.name) if self.path is None else cv2.imread(str(self.path), cv2.IMREAD_UNCHANGED)
         if image is None:
-            raise ValueError(f"cannot read the image {self.path or self.name}")
+            raise InputError(f"cannot read the image {self.path or self.name}")
         return to_gray(image)
 
 
@@ -90,10 +92,10 @@ def folder_photos(folder: str | Path) -> list[Photo]:
     """The photographs under ``folder`` (recursively), sorted; ValueError if there are none."""
     root = Path(folder)
     if not root.is_dir():
-        raise ValueError(f"no folder of photographs at {root}")
+        raise InputError(f"no folder of photographs at {root}")
     files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
-        raise ValueError(f"no photographs ({', '.join(IMAGE_SUFFIXES)}) under {root}")
+        raise InputError(f"no photographs ({', '.join(IMAGE_SUFFIXES)}) under {root}")
     photos = []
     for path in files:
         relative = path.relative_to(root)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.geometry import in_image, warp_points
 from deepslam.sim.camera import intrinsics, invert, pose, project, transform
 from deepslam.sim.homography import HomographyConfig, sample_homography
@@ -54,13 +55,13 @@ class PairConfig:
     def __post_init__(self):
         weights = self.geometry_weights
         if len(weights) != len(GEOMETRIES) or min(weights) < 0 or sum(weights) <= 0:
-            raise ValueError(
+            raise InputError(
                 f"geometry_weights needs {len(GEOMETRIES)} non-negative weights, not all zero "
                 f"({', '.join(GEOMETRIES)}), got {tuple(weights)}"
             )
         for name in ("max_extra", "clean_a_share"):
             if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
+                raise InputError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
 
 
 @dataclass

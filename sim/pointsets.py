@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.geometry import in_image, warp_points
 from deepslam.sim.homography import image_corners, normalize
 
@@ -40,7 +41,7 @@ def motion_homography(
         src = image_corners(size)
         dst = src + magnitude * direction
         return normalize(cv2.getPerspectiveTransform(src.astype(np.float32), dst.astype(np.float32)))
-    raise ValueError(f"unknown motion {kind!r}; expected one of {', '.join(MOTIONS)}")
+    raise InputError(f"unknown motion {kind!r}; expected one of {', '.join(MOTIONS)}")
 
 
 def random_direction(rng: np.random.Generator) -> np.ndarray:
@@ -55,7 +56,7 @@ def detector_points(rng: np.random.Generator, count: int, size: tuple[int, int],
     h, w = size
     rows, cols = h // cell, w // cell
     if not 0 <= count <= rows * cols:
-        raise ValueError(
+        raise InputError(
             f"{count} points do not fit one per {cell}x{cell} cell of a {h}x{w} image ({rows * cols} cells)"
         )
     row, col = np.divmod(rng.choice(rows * cols, count, replace=False), cols)

@@ -8,6 +8,7 @@ from typing import Iterator
 
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.sim import trajectories
 from deepslam.sim import world as worlds
 from deepslam.sim.camera import intrinsics
@@ -72,7 +73,7 @@ class ScenarioConfig:
         if not 1 <= self.fov_deg < 180:
             problems.append(f"the field of view must lie in [1, 180) degrees, got {self.fov_deg}")
         if problems:
-            raise ValueError("; ".join(problems))
+            raise InputError("; ".join(problems))
 
 
 @dataclass

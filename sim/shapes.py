@@ -13,6 +13,7 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.geometry import in_image
 from deepslam.sim.homography import HomographyConfig, sample_homography, warp_image_and_points
 from deepslam.sim.noise import full_noise, random_noise
@@ -309,7 +310,7 @@ _DRAW: dict[str, Callable] = {
 def check_size(size: tuple[int, int]) -> tuple[int, int]:
     """Validate an image size (H, W): positive and divisible by 8 (the networks' cell size)."""
     if len(size) != 2 or min(size) <= 0 or size[0] % 8 or size[1] % 8:
-        raise ValueError(f"image size (H, W) must be positive and divisible by 8, got {tuple(size)}")
+        raise InputError(f"image size (H, W) must be positive and divisible by 8, got {tuple(size)}")
     return int(size[0]), int(size[1])
 
 
@@ -322,7 +323,7 @@ def render(
     categories "ellipses" and "noise".
     """
     if category not in CATEGORIES:
-        raise ValueError(f"unknown category {category!r}; expected one of {', '.join(CATEGORIES)}")
+        raise InputError(f"unknown category {category!r}; expected one of {', '.join(CATEGORIES)}")
     size = check_size(size)
     if category == "noise":
         return random_noise(size, rng), np.zeros((0, 2), np.float32)
@@ -343,7 +344,7 @@ def training_stream(
     warp, then the full photometric noise, except for a ``clean_share`` (0..1) of the images, which
     stay clean. Never the same example twice for a fresh ``rng``."""
     if not 0.0 <= clean_share <= 1.0:
-        raise ValueError(f"clean_share must lie in [0, 1], got {clean_share}")
+        raise InputError(f"clean_share must lie in [0, 1], got {clean_share}")
     while True:
         image, corners = render(CATEGORIES[int(rng.integers(len(CATEGORIES)))], rng, size)
         if homography is not None:

@@ -8,6 +8,7 @@ from typing import Literal, get_args
 import cv2
 import numpy as np
 
+from deepslam.errors import InputError
 from deepslam.geometry import path_length
 from deepslam.sim.camera import look_at, pose
 
@@ -64,11 +65,11 @@ def make(
     looking at it; line moves sideways in front of it; random is a ``random_walk`` looking forward.
     """
     if kind not in KINDS:
-        raise ValueError(f"unknown trajectory {kind!r}; expected one of {', '.join(KINDS)}")
+        raise InputError(f"unknown trajectory {kind!r}; expected one of {', '.join(KINDS)}")
     if frames < 2:
-        raise ValueError(f"a trajectory needs at least 2 frames, got {frames}")
+        raise InputError(f"a trajectory needs at least 2 frames, got {frames}")
     if speed <= 0 or fps <= 0:
-        raise ValueError(f"speed and fps must be positive, got speed={speed}, fps={fps}")
+        raise InputError(f"speed and fps must be positive, got speed={speed}, fps={fps}")
     stamps = np.rint(np.arange(frames) * 1e9 / fps).astype(np.int64)
     distance = speed * np.arange(frames) / fps
     target = np.asarray(target, np.float64)

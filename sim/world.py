@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import skimage.data
 
+from deepslam.errors import InputError
 from deepslam.geometry import in_image
 from deepslam.sim import noise as noise_module
 from deepslam.sim.camera import invert, project, transform
@@ -194,7 +195,7 @@ def make(name: str, seed: int = 0, landmark_density: float = 150.0) -> World:
     "room" (back wall, side walls, floor and boxes at different depths: the non-planar case).
     Cameras of ``sim.trajectories`` look at ``target`` from about y = -2."""
     if name not in WORLDS:
-        raise ValueError(f"unknown world {name!r}; expected one of {', '.join(WORLDS)}")
+        raise InputError(f"unknown world {name!r}; expected one of {', '.join(WORLDS)}")
     rng = np.random.default_rng(seed)
     if name == "plane":
         surfaces = [_rectangle((0, 0, 0), (6, 0, 0), (0, 0, -4.5), rng)]

@@ -3,17 +3,22 @@ import numpy as np
 import pytest
 
 from deepslam.backend import drift, relpose
+from deepslam.backend.config import GraphConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.bench import bench_pipeline
 from deepslam.backend.evaluation.runs import run_frames, simulate, simulated_frames
 from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix
-from deepslam.backend.graph import GraphConfig, PoseGraph
-from deepslam.backend.odometry import Odometry, OdometryConfig
-from deepslam.frontend.tracking import OracleTracker, TrackerConfig, Truth, make_tracker
+from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
+from deepslam.backend.graph import PoseGraph
+from deepslam.backend.pipeline import Pipeline
+from deepslam.errors import InputError
+from deepslam.frontend.config import TrackerConfig
+from deepslam.frontend.tracking import OracleTracker, Truth, make_tracker
 from deepslam.geometry import in_image, path_length, rotation_angle, vector_angle
 from deepslam.sim.camera import intrinsics, invert, pose, project, transform
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 K = intrinsics((120, 160))
+ORACLE_EXACT = TrackerConfig("oracle", oracle_noise=0.0)
 T_TRUE = pose(np.array([0.02, -0.04, 0.03]), np.array([0.3, 0.05, 0.1]))  # camera 2 in camera 1
 
 
@@ -150,8 +155,9 @@ def test_a_noise_free_oracle_in_the_room_keeps_a_finite_trajectory():
     # along the line, seed 1, the exact matches of frame 47 fit a homography that OpenCV cannot decompose
     output = run_frames(
         simulated_frames(Scenario(ScenarioConfig(world="room", trajectory="line", seed=1))),
-        Odometry(OracleTracker(noise_px=0.0, seed=1)),
+        PipelineConfig(ORACLE_EXACT, OdometryConfig()),
         progress=False,
+        seed=1,
     )
     assert np.isfinite(output.estimate).all() and drift.ate_rmse(output.estimate, output.truth) < 0.02
 
@@ -266,13 +272,14 @@ def test_drift_metrics(rng):
 
 def test_planar_world_with_oracle_recovers_the_trajectory():
     scenario = Scenario(ScenarioConfig(world="plane", frames=30))
-    odometry = Odometry(OracleTracker(noise_px=0.0), OdometryConfig(scale="gt"))
     models = []
 
     def keep_model(frame, result, diagnostics):
         models.append(result.relative.model if result.relative else None)
 
-    output = run_frames(simulated_frames(scenario), odometry, keep_model, progress=False)
+    output = run_frames(
+        simulated_frames(scenario), PipelineConfig(ORACLE_EXACT, OdometryConfig()), keep_model, progress=False
+    )
     assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
     assert models[0] is None and set(models[1:]) == {"homography"}  # "auto" sees the plane in every pair
     # exact projections: every track error against the depth buffer is zero, nothing is lost
@@ -283,7 +290,8 @@ def test_planar_world_with_oracle_recovers_the_trajectory():
 
 def test_track_errors_measure_pixel_noise_against_the_truth():
     scenario = Scenario(ScenarioConfig(world="room", frames=12))
-    output = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=1.0)), progress=False)
+    config = PipelineConfig(TrackerConfig("oracle", oracle_noise=1.0), OdometryConfig())
+    output = run_frames(simulated_frames(scenario), config, progress=False)
     # two independent 1 px Gaussian offsets: the difference has sigma sqrt(2); median radius 1.18 sqrt(2)
     assert 1.3 < output.summary()["track_error_px"] < 2.1
     assert 1.3 < output.summary()["pair_error_px"] < 2.1
@@ -292,24 +300,25 @@ def test_track_errors_measure_pixel_noise_against_the_truth():
 def test_plane_scale_needs_no_ground_truth_steps():
     scenario = Scenario(ScenarioConfig(world="plane", frames=20))
     config = OdometryConfig(scale="plane", plane_distance=scenario.plane_distance())
-    output = run_frames(simulated_frames(scenario), Odometry(OracleTracker(noise_px=0.0), config), progress=False)
+    output = run_frames(simulated_frames(scenario), PipelineConfig(ORACLE_EXACT, config), progress=False)
     assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
-    with pytest.raises(ValueError, match="distance"):
-        Odometry(OracleTracker(), OdometryConfig(scale="plane"))
+    with pytest.raises(InputError, match="distance"):
+        Pipeline(PipelineConfig(odometry=OdometryConfig(scale="plane")))
 
 
 def test_lost_frames_are_flagged_and_tracking_reinitialises():
     class Blind(OracleTracker):
         """Sees the landmarks except in frames 10-15, where it reports nothing."""
 
-        def track(self, image, truth=None):
+        def track(self, image):
             self.frame = getattr(self, "frame", -1) + 1
-            tracks = super().track(image, truth)
+            tracks = super().track(image)
             return type(tracks).empty() if 10 <= self.frame <= 15 else tracks
 
     scenario = Scenario(ScenarioConfig(world="plane", frames=30))
-    odometry = Odometry(Blind(noise_px=0.0), OdometryConfig(reinitialise_after=3))
-    output = run_frames(simulated_frames(scenario), odometry, progress=False)
+    truth, config = GroundTruth(), PipelineConfig(odometry=OdometryConfig(reinitialise_after=3))
+    blind = Blind(truth.landmarks, noise_px=0.0)
+    output = run_frames(simulated_frames(scenario), config, progress=False, tracker=blind, ground_truth=truth)
     lost = [i for i, d in enumerate(output.diagnostics) if d.lost]
     assert lost[:6] == list(range(10, 16)) and "matched points" in output.diagnostics[10].reason
     assert output.summary()["lost_frames"] == len(lost)
@@ -329,9 +338,13 @@ def test_a_pose_that_turns_away_from_the_frame_before_gives_way_to_a_model_that_
         return estimate
 
     monkeypatch.setattr(relpose, "estimate", turned_when_chosen)
-    odometry = Odometry(OracleTracker(noise_px=0.0), config)
-    for frame_index[0], frame in enumerate(simulated_frames(Scenario(ScenarioConfig(world="plane", frames=14)))):
-        result = odometry.process(frame)
+
+    def counted(frames):  # the frame being processed, for the patched estimate
+        for frame_index[0], frame in enumerate(frames):
+            yield frame
+
+    frames = counted(simulated_frames(Scenario(ScenarioConfig(world="plane", frames=14))))
+    for _, frame, result in run_pipeline(frames, PipelineConfig(ORACLE_EXACT, config)):
         if result.index == 12:
             error = _rotation_error_deg(result.T_world_cam, frame.T_world_cam)
     assert (error < 0.5) if kept else (error > 10)
@@ -370,13 +383,17 @@ def test_sweep_measures_with_the_relative_pose_method_it_is_given():
     assert max(planar) < 0.02 and min(general) > 3 * max(planar)  # E is degenerate on one plane
 
 
-def test_make_tracker_sets_the_oracle_pixel_noise():
-    truth = Truth(np.arange(50), np.random.default_rng(0).uniform(0, 100, (50, 2)))
+def test_the_oracle_takes_its_pixel_noise_from_the_config_and_its_landmarks_from_the_truth():
     image = np.zeros((120, 160), np.uint8)
-    exact = make_tracker(TrackerConfig("oracle", oracle_noise=0.0)).track(image, truth)
-    np.testing.assert_array_equal(exact.points, truth.pixels[exact.ids])
-    noisy = make_tracker(TrackerConfig("oracle", oracle_noise=2.0)).track(image, truth)
-    error = np.linalg.norm(noisy.points - truth.pixels[noisy.ids], axis=1)
+    landmarks = Truth(np.arange(50), np.random.default_rng(0).uniform(0, 100, (50, 2)))
+    truth = GroundTruth()
+    truth.see(TrueFrame(image, np.eye(3), 0, landmarks=landmarks))
+    exact = truth.oracle(TrackerConfig("oracle", oracle_noise=0.0)).track(image)
+    np.testing.assert_array_equal(exact.points, landmarks.pixels[exact.ids])
+    noisy = truth.oracle(TrackerConfig("oracle", oracle_noise=2.0)).track(image)
+    error = np.linalg.norm(noisy.points - landmarks.pixels[noisy.ids], axis=1)
+    with pytest.raises(InputError, match="oracle"):
+        make_tracker(TrackerConfig("oracle"))  # the library has no truth to give it
     assert 1.5 < np.median(error) < 3.5  # a 2-D Gaussian of sigma 2 has a median radius of 2.35
 
 
@@ -389,7 +406,8 @@ def test_magic_tracks_are_carried_only_where_relative_poses_may_come_from_a_homo
     ]:
         tracker = TrackerConfig("magic", **options)
         run = simulate(ScenarioConfig(frames=3), tracker, OdometryConfig(method=method), progress=False)
-        assert run["odometry"].tracker.carry is carried
+        assert run["pipeline"].tracker.carry is carried
+        assert Pipeline(PipelineConfig(tracker, OdometryConfig(method=method, scale="none"))).tracker.carry is carried
 
 
 def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
@@ -401,10 +419,11 @@ def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
             return kept, current.points[kept[:, 1]] + 0.25
 
     scenario = Scenario(ScenarioConfig(world="plane", frames=24))
-    odometry = Odometry(Choosy(noise_px=0.0))
-    keyframes = 0
-    for frame in simulated_frames(scenario):
-        result = odometry.process(frame)
+    truth = GroundTruth()
+    keyframes, choosy = 0, Choosy(truth.landmarks, noise_px=0.0)
+    frames = simulated_frames(scenario)
+    for pipeline, _, result in run_pipeline(frames, PipelineConfig(odometry=OdometryConfig()), choosy, truth=truth):
+        odometry = pipeline.odometry
         if result.index:
             shared = np.intersect1d(odometry.history[result.reference][1].ids, result.tracks.ids)
             assert len(result.correspondences) == (len(shared) + 1) // 2

@@ -96,10 +96,9 @@ def test_cli_defaults_are_the_config_defaults():
     """Every option that a config dataclass offers has the dataclass's default: one source for each setting."""
     import dataclasses
 
+    from deepslam.backend.config import OdometryConfig
     from deepslam.backend.evaluation.sweep import SweepConfig
-    from deepslam.backend.odometry import OdometryConfig
-    from deepslam.frontend.magicwarp import MagicWarpConfig
-    from deepslam.frontend.tracking import TrackerConfig
+    from deepslam.frontend.config import MagicWarpConfig, TrackerConfig
     from deepslam.frontend.training import adaptation, magicpoint, magicwarp
     from deepslam.options import options_of
     from deepslam.sim.scenario import ScenarioConfig

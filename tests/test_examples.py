@@ -32,3 +32,21 @@ def test_subpixel_precision_example_finds_parabola_labels_follow_a_sub_pixel_shi
     label_mean = {refine: float(row[1]) for refine, row in rows.items()}
     assert label_mean["parabola"] < label_mean["none"], label_mean
     assert all(int(row[4].strip("()")) > 0 and int(row[8].strip("()")) > 0 for row in rows.values()), rows
+
+
+def test_own_frames_example_runs_the_pipeline_on_a_folder_of_images(tmp_path, capsys, monkeypatch):
+    import cv2
+
+    from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+    scenario = Scenario(ScenarioConfig(world="plane", trajectory="line", frames=12))
+    for index, frame in enumerate(scenario):
+        cv2.imwrite(str(tmp_path / f"{index:03d}.png"), frame.image)
+    fx, fy, cx, cy = scenario.K[0, 0], scenario.K[1, 1], scenario.K[0, 2], scenario.K[1, 2]
+    argv = ["own_frames.py", str(tmp_path), "--frontend", "classical", "--K", *map(str, (fx, fy, cx, cy))]
+    monkeypatch.setattr("sys.argv", argv)
+    runpy.run_path(str(EXAMPLES / "own_frames.py"), run_name="__main__")
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 13 and lines[-1].startswith("12 frames")
+    assert not any(line.endswith("lost True") for line in lines[:-1])
+    assert float(lines[-1].split("path length ")[1].split()[0]) > 0  # it moved

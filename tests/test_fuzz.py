@@ -6,10 +6,10 @@ import warnings
 import numpy as np
 import pytest
 
+from deepslam.backend.config import OdometryConfig
 from deepslam.backend.evaluation.runs import simulate
-from deepslam.backend.odometry import OdometryConfig
 from deepslam.cli import main
-from deepslam.frontend.tracking import TrackerConfig
+from deepslam.frontend.config import TrackerConfig
 from deepslam.logs.reader import LogError, read_frames
 from deepslam.sim.scenario import ScenarioConfig
 

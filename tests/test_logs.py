@@ -13,13 +13,13 @@ import pytest
 from mcap.reader import make_reader
 
 from deepslam.backend import drift
+from deepslam.backend.config import OdometryConfig
 from deepslam.backend.evaluation import analysis
 from deepslam.backend.evaluation.runs import replay, simulate
-from deepslam.backend.odometry import OdometryConfig
 from deepslam.cli import main
-from deepslam.frontend.tracking import TrackerConfig
+from deepslam.frontend.config import TrackerConfig
+from deepslam.geometry import pose_matrix, quaternion_from_matrix
 from deepslam.interrupts import held_signals
-from deepslam.logs.frames import pose_matrix, quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.logs.schemas import TOPICS, ros2_name
 from deepslam.logs.writer import LogWriteError, LogWriter, partial_path

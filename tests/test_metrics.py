@@ -4,6 +4,7 @@ import torch
 
 from deepslam.frontend import MagicWarp
 from deepslam.frontend.classical import ClassicalDetector
+from deepslam.frontend.config import MagicWarpConfig
 from deepslam.frontend.evaluation.detector import _jittered
 from deepslam.frontend.evaluation.metrics import (
     average_precision,
@@ -21,7 +22,7 @@ from deepslam.frontend.evaluation.warp import (
     validation_figures,
     validation_set,
 )
-from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
+from deepslam.frontend.magicwarp import MagicWarpNet
 from deepslam.sim.world import photo
 
 

@@ -5,13 +5,13 @@ import cv2
 import numpy as np
 import pytest
 
+from deepslam.backend.config import OdometryConfig
 from deepslam.backend.evaluation.runs import replay, simulate
-from deepslam.backend.odometry import OdometryConfig
 from deepslam.cli import main
-from deepslam.frontend.tracking import TrackerConfig
-from deepslam.logs.frames import quaternion_from_matrix
+from deepslam.frontend.config import TrackerConfig
+from deepslam.geometry import quaternion_from_matrix
+from deepslam.inputs import Calibration, Rectifier, SourceError, SourceOptions, associate, open_source
 from deepslam.logs.reader import read_frames, read_metadata
-from deepslam.logs.sources import Calibration, Rectifier, SourceError, SourceOptions, associate, open_source
 from deepslam.sim.scenario import ScenarioConfig
 
 CLASSICAL = TrackerConfig("classical")

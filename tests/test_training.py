@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from deepslam.frontend import MagicPoint
+from deepslam.frontend.config import MagicWarpConfig
 from deepslam.frontend.magicpoint import MagicPointConfig
-from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
+from deepslam.frontend.magicwarp import MagicWarpNet
 from deepslam.frontend.training import magicpoint as train_magicpoint
 from deepslam.frontend.training import magicwarp as train_magicwarp
 from deepslam.frontend.training.loop import LoopConfig, export_weights, train

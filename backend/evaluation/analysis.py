@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from deepslam.backend import drift
-from deepslam.logs.frames import quaternion_from_matrix
+from deepslam.geometry import quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 
 

@@ -7,9 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from deepslam.backend.config import OdometryConfig
 from deepslam.backend.evaluation.runs import simulated_frames
-from deepslam.backend.odometry import Odometry, OdometryConfig
-from deepslam.frontend.tracking import TrackerConfig, make_tracker
+from deepslam.backend.evaluation.truth import run_pipeline
+from deepslam.backend.pipeline import PipelineConfig
+from deepslam.errors import InputError
+from deepslam.frontend.config import TrackerConfig
 from deepslam.progress import progress_bar
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -39,7 +42,7 @@ def bench_pipeline(
     ``WINDOW`` frames) at frame ``EARLY_FRAME`` and at the end, of the last round. Time it on one torch
     thread (the CLI sets it)."""
     if rounds < 1:
-        raise ValueError(f"the bench needs at least 1 round, got {rounds}")
+        raise InputError(f"the bench needs at least 1 round, got {rounds}")
     per_round, growth = [], {}
     for _ in range(rounds):
         means, growth = _timed_run(frames, seed, tracker_config)
@@ -55,13 +58,13 @@ def bench_pipeline(
 def _timed_run(frames: int, seed: int, tracker_config: TrackerConfig) -> tuple[dict[str, float], dict[str, float]]:
     """One timed run of ``bench_pipeline``: (mean milliseconds per frame of each stage and their total,
     memory and graph time at frame ``EARLY_FRAME`` and at the end of a long run)."""
-    tracker = make_tracker(tracker_config, seed)
-    odometry = Odometry(tracker, OdometryConfig(covariance=False))
+    config = PipelineConfig(tracker_config, OdometryConfig(covariance=False))
     stages: dict[str, list[float]] = {}
     growth: dict[str, float] = {}
     scenario = Scenario(ScenarioConfig(frames=frames, seed=seed))
-    for index, frame in enumerate(progress_bar(simulated_frames(scenario), total=frames, unit="frame")):
-        timings = odometry.process(frame).timings_ms
+    timed = run_pipeline(progress_bar(simulated_frames(scenario), total=frames, unit="frame"), config, seed=seed)
+    for index, (pipeline, _, result) in enumerate(timed):
+        tracker, timings = pipeline.tracker, result.timings_ms
         for name, ms in [*tracker.timings_ms.items(), *((f"odometry.{k}", v) for k, v in timings.items())]:
             stages.setdefault(name, []).append(ms)
         if frames > EARLY_FRAME and index + 1 in (EARLY_FRAME, frames):

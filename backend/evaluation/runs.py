@@ -4,33 +4,33 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Iterator
 
 import cv2
 import numpy as np
 
 from deepslam.backend import drift
-from deepslam.backend.odometry import FrameResult, InputFrame, Odometry, OdometryConfig
-from deepslam.frontend.tracking import Tracker, TrackerConfig, Tracks, Truth, make_tracker
+from deepslam.backend.config import OdometryConfig, PipelineConfig
+from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
+from deepslam.backend.odometry import FrameResult
+from deepslam.backend.pipeline import Pipeline
+from deepslam.errors import InputError
+from deepslam.frontend.config import TrackerConfig
+from deepslam.frontend.tracking import Tracker, Tracks, Truth
+from deepslam.inputs import SourceOptions, open_source
 from deepslam.interrupts import held_signals
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
-from deepslam.logs.sources import SourceOptions, open_source
 from deepslam.progress import progress_bar
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 
-def _tracker(config: TrackerConfig, odometry: OdometryConfig, seed: int = 0) -> Tracker:
-    """The front-end of ``config``; carried magic tracks sit where the dominant plane's homography puts
-    them, so they are on by default only when relative poses may come from that homography too."""
-    return make_tracker(config, seed, carry_default=odometry.method in ("homography", "auto"))
-
-
-def simulated_frames(scenario: Scenario) -> Iterable[InputFrame]:
+def simulated_frames(scenario: Scenario) -> Iterator[TrueFrame]:
+    """The scenario's frames with all the simulator knows of them."""
     for f in scenario:
-        yield InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels), f.depth)
+        yield TrueFrame(f.image, f.K, f.stamp_ns, f.T_world_cam, Truth(f.landmark_ids, f.landmark_pixels), f.depth)
 
 
-def true_positions(before: InputFrame, points_before: np.ndarray, after: InputFrame) -> np.ndarray:
+def true_positions(before: TrueFrame, points_before: np.ndarray, after: TrueFrame) -> np.ndarray:
     """Where ``points_before`` (N, 2) of frame ``before`` truly are in frame ``after``: each back-projected
     with the true depth, moved by the true poses and projected (N, 2); NaN where the depth buffer saw nothing.
     All NaN without depth or poses (real data)."""
@@ -54,7 +54,7 @@ def true_positions(before: InputFrame, points_before: np.ndarray, after: InputFr
 
 
 def projection_errors(
-    before: InputFrame, points_before: np.ndarray, after: InputFrame, points_after: np.ndarray
+    before: TrueFrame, points_before: np.ndarray, after: TrueFrame, points_after: np.ndarray
 ) -> np.ndarray:
     """Pixel errors (M,) of point pairs: each of ``points_before`` (N, 2) where it truly is in ``after``
     (``true_positions``) against its partner in ``points_after`` (N, 2); points where the depth buffer saw
@@ -64,14 +64,14 @@ def projection_errors(
     return np.linalg.norm(projected[seen] - np.asarray(points_after, np.float64).reshape(-1, 2)[seen], axis=1)
 
 
-def track_errors(previous: InputFrame, tracks_before: Tracks, frame: InputFrame, tracks: Tracks) -> np.ndarray:
+def track_errors(previous: TrueFrame, tracks_before: Tracks, frame: TrueFrame, tracks: Tracks) -> np.ndarray:
     """Pixel errors (M,) of the tracks followed from ``previous`` to ``frame``, where the front-end put them
     (``projection_errors``)."""
     _, before, after = np.intersect1d(tracks_before.ids, tracks.ids, return_indices=True)
     return projection_errors(previous, tracks_before.points[before], frame, tracks.points[after])
 
 
-Sink = Callable[[InputFrame, FrameResult, FrameDiagnostics], None]
+Sink = Callable[[TrueFrame, FrameResult, FrameDiagnostics], None]
 
 
 @dataclass
@@ -80,13 +80,14 @@ class RunOutput:
     frame was done (the poses that are logged); ground truth (N, 4, 4) with NaN where a frame has none, or
     None when no frame has any; per-frame diagnostics; every track's error against truth from frame to
     frame, and the error of every pair a pose was measured from (a keyframe's point and this frame's, as
-    measured), in pixels (empty without truth)."""
+    measured), in pixels (empty without truth); the pipeline that ran."""
 
     estimate: np.ndarray
     truth: np.ndarray | None
     diagnostics: list[FrameDiagnostics]
     track_errors: np.ndarray
     pair_errors: np.ndarray
+    pipeline: Pipeline
 
     def summary(self, scale: str = "gt") -> dict:
         """Drift over the frames with ground truth (with ``scale`` "none", only what survives a Sim(3)
@@ -110,7 +111,7 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(values)) if len(values) else float("nan")
 
 
-def _pair_errors(frame: InputFrame, result: FrameResult, kept: dict[int, tuple[InputFrame, Tracks]]) -> np.ndarray:
+def _pair_errors(frame: TrueFrame, result: FrameResult, kept: dict[int, tuple[TrueFrame, Tracks]]) -> np.ndarray:
     """Pixel errors (M,) of the pairs the frame's pose was measured from (``projection_errors``), if its
     reference keyframe is among the ``kept`` frames."""
     if result.measured_points is None or result.reference not in kept:
@@ -121,7 +122,7 @@ def _pair_errors(frame: InputFrame, result: FrameResult, kept: dict[int, tuple[I
 
 
 def _diagnostics(
-    frame: InputFrame, result: FrameResult, frame_errors: np.ndarray, frame_pair_errors: np.ndarray
+    frame: TrueFrame, result: FrameResult, frame_errors: np.ndarray, frame_pair_errors: np.ndarray
 ) -> FrameDiagnostics:
     """What the log and the drift report keep of one processed frame, given its track and pair errors (px)."""
     relative = result.relative
@@ -143,21 +144,27 @@ def _diagnostics(
 
 
 def run_frames(
-    frames: Iterable[InputFrame],
-    odometry: Odometry,
+    frames: Iterable[TrueFrame],
+    config: PipelineConfig,
     sink: Sink | None = None,
     total: int | None = None,
     progress: bool = True,
+    tracker: Tracker | None = None,
+    seed: int = 0,
+    ground_truth: GroundTruth | None = None,
 ) -> RunOutput:
-    """Process frames in order, handing each (frame, result, diagnostics) to ``sink`` as soon as it is
-    done (Ctrl-C and SIGTERM take effect between frames). ``odometry.poses()`` has the final smoothed
+    """Process frames in order through the pipeline of ``config`` (with ``tracker`` instead of its
+    front-end if given, fed by ``ground_truth`` if it is an oracle of one's own; ``seed``: the oracle's
+    noise), handing each (frame, result, diagnostics) to ``sink`` as soon as it is done (Ctrl-C and
+    SIGTERM take effect between frames). ``RunOutput.pipeline.trajectory()`` has the final smoothed
     trajectory."""
     truth, online, diagnostics, errors, pair_errors = [], [], [], [], []
-    previous: tuple[InputFrame, Tracks] | None = None
-    kept: dict[int, tuple[InputFrame, Tracks]] = {}  # the frames a later pose may be measured against
+    previous: tuple[TrueFrame, Tracks] | None = None
+    kept: dict[int, tuple[TrueFrame, Tracks]] = {}  # the frames a later pose may be measured against
+    pipeline = None
     with held_signals() as signals:
-        for frame in progress_bar(frames, total=total, unit="frame", disable=not progress):
-            result = odometry.process(frame)
+        frames = progress_bar(frames, total=total, unit="frame", disable=not progress)
+        for pipeline, frame, result in run_pipeline(frames, config, tracker, seed, ground_truth):
             frame_errors = track_errors(*previous, frame, result.tracks) if previous else np.zeros(0)
             frame_pair_errors = _pair_errors(frame, result, kept)
             diagnostics.append(_diagnostics(frame, result, frame_errors, frame_pair_errors))
@@ -167,12 +174,13 @@ def run_frames(
             online.append(result.T_world_cam)
             if sink is not None:
                 sink(frame, result, diagnostics[-1])
-            previous = (replace(frame, image=None, truth=None), result.tracks)  # what the next frame needs
+            previous = (replace(frame, image=None, landmarks=None), result.tracks)  # what the next frame needs
             kept[result.index] = previous
+            odometry = pipeline.odometry
             kept = {i: v for i, v in kept.items() if i in (odometry.keyframe, odometry.previous_keyframe)}
             signals.checkpoint()
     if not online:
-        raise ValueError("no frames to process")
+        raise InputError("no frames to process")
     unknown = np.full((4, 4), np.nan)
     known = [T if T is not None else unknown for T in truth]
     has_truth = any(T is not None for T in truth)
@@ -182,6 +190,7 @@ def run_frames(
         diagnostics,
         np.concatenate(errors),
         np.concatenate(pair_errors),
+        pipeline,
     )
 
 
@@ -195,7 +204,7 @@ def simulate(
 ) -> dict:
     """Run one simulated trajectory end to end (logged to ``out`` if given).
 
-    Returns {"estimate", "truth", "drift", "scale", "odometry", "world", "diagnostics"}; the drift figures say
+    Returns {"estimate", "truth", "drift", "scale", "pipeline", "world", "diagnostics"}; the drift figures say
     which scale was used.
     """
     if out is not None:
@@ -205,10 +214,10 @@ def simulate(
     scenario = Scenario(scenario_config)
     if odometry_config.scale == "plane" and odometry_config.plane_distance is None:
         odometry_config = replace(odometry_config, plane_distance=scenario.plane_distance())
-    odometry = Odometry(_tracker(tracker_config, odometry_config, scenario_config.seed), odometry_config)
+    config, seed = PipelineConfig(tracker_config, odometry_config), scenario_config.seed
     frames = simulated_frames(scenario)
     if out is None:
-        output = run_frames(frames, odometry, None, len(scenario), progress)
+        output = run_frames(frames, config, None, len(scenario), progress, seed=seed)
     else:
         meta = {
             "scenario": asdict(scenario_config),
@@ -217,14 +226,14 @@ def simulate(
             "tracker": asdict(tracker_config),
             **(metadata or {}),
         }
-        output = run_logged(frames, odometry, out, meta, len(scenario), progress)
+        output = run_logged(frames, config, out, meta, len(scenario), progress, seed)
     return {
         "estimate": output.estimate,
         "truth": output.truth,
         "drift": output.summary(),
-        "smoothed_ate_se3": drift.ate_rmse(odometry.poses(), output.truth),
+        "smoothed_ate_se3": drift.ate_rmse(output.pipeline.trajectory(), output.truth),
         "scale": odometry_config.scale,
-        "odometry": odometry,
+        "pipeline": output.pipeline,
         "world": scenario.world,
         "diagnostics": output.diagnostics,
     }
@@ -240,20 +249,19 @@ def replay(
     source_options: SourceOptions = SourceOptions(),
 ) -> dict:
     """Run the pipeline on recorded data into a new log (never over its input): a deepslam log, a ROS 2
-    bag, a TUM RGB-D or an EuRoC/ASL folder (``deepslam.logs.sources``), checked before any work starts.
+    bag, a TUM RGB-D or an EuRoC/ASL folder (``deepslam.inputs``), checked before any work starts.
     The log's metadata keeps the input's own calibration; its CameraInfo the K the pipeline used."""
     from deepslam.logs.writer import check_output
 
     if tracker_config.frontend == "oracle":
-        raise ValueError("the oracle front-end needs the simulator's landmarks, which recorded data does not hold")
+        raise InputError("the oracle front-end needs the simulator's landmarks, which recorded data does not hold")
     check_output(out, inputs=(source,))
     frames = open_source(source, source_options)
     if odometry_config.scale == "gt" and frames.frames_with_truth < len(frames):
-        raise ValueError(
+        raise InputError(
             f"{source}: --scale gt needs ground truth in every frame, {frames.frames_with_truth} of {len(frames)} "
             f"have it; use --scale none (up to scale) or --scale plane --plane-distance M"
         )
-    odometry = Odometry(_tracker(tracker_config, odometry_config), odometry_config)
     meta = {
         "replayed_from": str(source),
         "source": frames.kind,
@@ -263,8 +271,8 @@ def replay(
         "tracker": asdict(tracker_config),
         **(metadata or {}),
     }
-    inputs = (InputFrame(f.image, f.K, f.stamp_ns, f.T_world_cam) for f in frames.frames())
-    output = run_logged(inputs, odometry, out, meta, len(frames), progress)
+    inputs = (TrueFrame(f.image, f.K, f.stamp_ns, f.T_world_cam) for f in frames.frames())
+    output = run_logged(inputs, PipelineConfig(tracker_config, odometry_config), out, meta, len(frames), progress)
     return {
         "estimate": output.estimate,
         "truth": output.truth,
@@ -275,7 +283,7 @@ def replay(
 
 
 def to_log_frame(
-    frame: InputFrame, result: FrameResult, reference_stamp_ns: int | None, diagnostics: FrameDiagnostics
+    frame: TrueFrame, result: FrameResult, reference_stamp_ns: int | None, diagnostics: FrameDiagnostics
 ) -> LogFrame:
     """The log record of one processed frame (the format lives in ``logs``; the content here)."""
     tracks = (
@@ -307,12 +315,13 @@ def to_log_frame(
 
 
 def run_logged(
-    frames: Iterable[InputFrame],
-    odometry: Odometry,
+    frames: Iterable[TrueFrame],
+    config: PipelineConfig,
     out: str | Path,
     metadata: dict,
     total: int | None = None,
     progress: bool = True,
+    seed: int = 0,
 ) -> RunOutput:
     """``run_frames`` writing every frame to an MCAP log at ``out`` as it is processed. The log is
     finished cleanly on Ctrl-C (and then the interruption propagates)."""
@@ -321,8 +330,8 @@ def run_logged(
     stamps: list[int] = []
     with LogWriter(out, metadata) as log:
 
-        def sink(frame: InputFrame, result: FrameResult, diagnostics: FrameDiagnostics) -> None:
+        def sink(frame: TrueFrame, result: FrameResult, diagnostics: FrameDiagnostics) -> None:
             stamps.append(frame.stamp_ns)
             log.write(to_log_frame(frame, result, stamps[result.reference], diagnostics))
 
-        return run_frames(frames, odometry, sink, total, progress)
+        return run_frames(frames, config, sink, total, progress, seed=seed)

@@ -7,69 +7,19 @@ over ``FAILED_SHARE`` of its path length.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
+from deepslam.backend.config import OdometryConfig
+from deepslam.backend.evaluation.config import SweepConfig
 from deepslam.backend.evaluation.runs import simulate
-from deepslam.backend.odometry import OdometryConfig, Scale
-from deepslam.backend.relpose import Method
-from deepslam.frontend.tracking import Frontend, TrackerConfig
+from deepslam.errors import InputError
+from deepslam.frontend.config import TrackerConfig
 from deepslam.parallel import Workers, parallel_map
-from deepslam.sim import trajectories
 from deepslam.sim.scenario import ScenarioConfig
-from deepslam.sim.world import WorldName
 
 FAILED_SHARE = 0.05
-
-
-@dataclass(frozen=True)
-class SweepConfig:
-    """What ``deepslam eval pipeline`` sweeps; every field is an option."""
-
-    worlds: tuple[WorldName, ...] = field(
-        default=("plane", "room"), metadata={"help": "simulated worlds: one textured wall and/or a room"}
-    )
-    trajectories: tuple[trajectories.Kind, ...] = field(
-        default=("circle", "figure8", "line", "random"), metadata={"help": "camera paths"}
-    )
-    frontends: tuple[Frontend, ...] = field(
-        default=("oracle", "magic", "classical"),
-        metadata={"help": "front-ends to compare (oracle: true projections with pixel noise, the reference)"},
-    )
-    noise: tuple[float, ...] = field(
-        default=(0.0, 0.25, 0.5, 1.0),
-        metadata={"help": "photometric noise magnitudes s (0 clean, 1 full)", "min": 0, "max": 2},
-    )
-    lighting: tuple[float, ...] = field(
-        default=(0.0, 0.3), metadata={"help": "amplitudes of a slow global brightness change", "min": 0, "max": 1}
-    )
-    frames: int = field(default=60, metadata={"help": "frames per run", "min": 2})
-    seeds: int = field(
-        default=12,
-        metadata={"help": "runs per cell, seeds 0..N-1 (each seed its own world: textures, layout)", "min": 1},
-    )
-    scale: Scale = field(
-        default="gt",
-        metadata={"help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the plane"},
-    )
-    method: Method = field(
-        default=OdometryConfig().method,
-        metadata={
-            "help": "relative pose of the odometry, as deepslam run --method: auto, homography, essential, pycolmap"
-        },
-    )
-
-    def cells(self) -> list[tuple]:
-        """(world, trajectory, noise, lighting, front-end) of every row, in table order."""
-        return [
-            (world, path, noise, light, frontend)
-            for world in self.worlds
-            for path in self.trajectories
-            for noise in self.noise
-            for light in self.lighting
-            for frontend in self.frontends
-        ]
 
 
 def _median(values: list[float]) -> float:
@@ -113,7 +63,7 @@ def pipeline_matrix(
     photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
     cells, seeds = config.cells(), range(config.seeds)
     if not cells:
-        raise ValueError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
+        raise InputError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
     pieces = [(cell, seed, config, tracker_config) for cell in cells for seed in seeds]
     results = parallel_map(run_cell, pieces, workers, _describe, "runs" if progress else None)
     return [_row(cell, results[i * config.seeds : (i + 1) * config.seeds], config) for i, cell in enumerate(cells)]

@@ -8,6 +8,9 @@ from typing import Callable
 import numpy as np
 import torch
 
+from deepslam.errors import InputError
+from deepslam.frontend.config import BENCH_REPEATS
+
 PAPER_MS = {
     ("S", (120, 160)): 5.3,
     ("S", (240, 320)): 38.1,
@@ -21,7 +24,7 @@ PAPER_MS = {
 def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> float:
     """Median wall time of ``fn`` in milliseconds."""
     if repeats < 1 or warmup < 0:
-        raise ValueError(f"timing needs at least 1 repetition and no negative warm-up, got {repeats} and {warmup}")
+        raise InputError(f"timing needs at least 1 repetition and no negative warm-up, got {repeats} and {warmup}")
     for _ in range(warmup):
         fn()
     samples = []
@@ -32,7 +35,7 @@ def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> f
     return 1e3 * float(np.median(samples))
 
 
-def bench_detector(repeats: int = 100) -> list[dict]:
+def bench_detector(repeats: int = BENCH_REPEATS) -> list[dict]:
     """MagicPoint S and L forward passes and point extraction at 160x120 and 320x240."""
     from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint, MagicPointNet
     from deepslam.frontend.points import extract_points
@@ -64,7 +67,7 @@ def bench_detector(repeats: int = 100) -> list[dict]:
     return rows
 
 
-def bench_warp(repeats: int = 200) -> list[dict]:
+def bench_warp(repeats: int = BENCH_REPEATS) -> list[dict]:
     """MagicWarp forward passes on 20x15x130 and 40x30x130 inputs (the shipped network, or the default
     architecture untrained when no weights are shipped)."""
     from deepslam.frontend.magicwarp import WEIGHTS, MagicWarp, MagicWarpNet

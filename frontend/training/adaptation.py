@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import torch
 
+from deepslam.errors import InputError
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.magicpoint import VARIANTS, MagicPoint, MagicPointConfig, MagicPointNet, cells_to_heatmap
 from deepslam.frontend.nets import load_checkpoint
@@ -146,7 +147,7 @@ class AdaptConfig(LoopConfig):
         if not (np.isfinite(self.shift_consistency) and self.shift_consistency >= 0):
             problems.append(f"--shift-consistency must be finite and at least 0, got {self.shift_consistency}")
         if problems:
-            raise ValueError("; ".join(problems))
+            raise InputError("; ".join(problems))
 
 
 def _homography(ranges: tuple[float, float, float, float]) -> HomographyConfig:
@@ -373,7 +374,7 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
 
     parts = photos.split(tuple(config.photos))
     if not parts["training"] or not parts["validation"]:
-        raise ValueError("homographic adaptation needs photographs for training and for validation; add --photos DIR")
+        raise InputError("homographic adaptation needs photographs for training and for validation; add --photos DIR")
     log.info(f"photographs: {len(parts['training'])} for training, {len(parts['validation'])} for validation")
     source = Photographs(parts["training"])
     sequences = validation_sequences(config, parts["validation"])
@@ -386,7 +387,7 @@ def run(out_dir: Path, config: AdaptConfig = AdaptConfig()) -> dict:
         key = labelling_key(config, detector_weights, parts["training"], round_)
         trained_on = folder / "labels" / "key.json"
         if (folder / "last.pt").exists() and trained_on.exists() and json.loads(trained_on.read_text()) != key:
-            raise ValueError(
+            raise InputError(
                 f"{folder} was trained on labels of another detector, photographs or options; train into another --out"
             )
         if _finished(folder, config.iterations):  # a finished round needs neither its labels nor training

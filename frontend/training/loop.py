@@ -25,6 +25,7 @@ import torch
 import torch.distributed as dist
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
+from deepslam.errors import InputError
 from deepslam.frontend.nets import load_checkpoint, network_config, resolve_device
 from deepslam.frontend.training.surgery import config_of, load_weights
 from deepslam.progress import progress_bar
@@ -78,7 +79,7 @@ class LoopConfig:
         if not 0 <= self.ema < 1:
             problems.append(f"--ema must lie in [0, 1), got {self.ema}")
         if problems:
-            raise ValueError("; ".join(problems))
+            raise InputError("; ".join(problems))
 
 
 def save_checkpoint(
@@ -111,7 +112,7 @@ def export_weights(checkpoint: Path, out: Path) -> dict:
     """Write the inference part of a training checkpoint (model, configs, step; no optimiser or
     generator state) to ``out``, the form shipped in ``frontend/weights``; returns what was kept."""
     if Path(out).exists() and Path(out).samefile(checkpoint):
-        raise ValueError(f"exporting {checkpoint} onto itself would destroy the checkpoint; choose another OUT")
+        raise InputError(f"exporting {checkpoint} onto itself would destroy the checkpoint; choose another OUT")
     state = load_checkpoint(checkpoint, needs=("model", "config", "step"))
     kept = {key: state[key] for key in ("model", "config", "step", "train_config") if key in state}
     if "ema" in state:
@@ -222,35 +223,12 @@ def train(
     device = torch.device(resolve_device(config.device))
     ranks = Ranks.join(device)
     if config.batch % ranks.world:
-        raise ValueError(f"--batch {config.batch} does not divide among {ranks.world} ranks; use a multiple")
+        raise InputError(f"--batch {config.batch} does not divide among {ranks.world} ranks; use a multiple")
     model.to(device)
     out_dir.mkdir(parents=True, exist_ok=True)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     rng = np.random.default_rng(config.seed if ranks.world == 1 else [config.seed, ranks.rank])
-    step, best, elapsed, history = 0, -np.inf, 0.0, []
-    last = out_dir / "last.pt"
-    if last.exists():
-        state = load_checkpoint(last, needs=("model", "config", "optimizer", "step", "rng"))
-        if config_of(model, network_config(state)) != model.config:
-            raise ValueError(
-                f"{last} holds a network of another shape ({network_config(state)}), not "
-                f"{asdict(model.config)}: resume it with its own options, or train into another folder"
-            )
-        streams = state.get("rngs", [state["rng"]])
-        if len(streams) != ranks.world:
-            raise ValueError(f"{last} was trained by {len(streams)} ranks, not {ranks.world}: resume it with as many")
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        for group in optimizer.param_groups:  # resuming with another --lr applies it (a manual schedule)
-            group["lr"] = config.lr
-        rng.bit_generator.state = streams[ranks.rank]
-        step, best, elapsed, history = state["step"], state["best"], state["elapsed"], state["history"]
-        log.info(f"resuming from {last} at step {step}")
-    else:
-        state = None
-        if config.init:
-            load_weights(model, Path(config.init))
-            log.info(f"starting from the weights of {config.init}")
+    state, (step, best, elapsed, history) = _resume(model, optimizer, rng, config, out_dir / "last.pt", ranks)
     if ranks.world > 1:
         ranks.share(model)
     ema = _moving_average(model, config.ema, state)
@@ -261,21 +239,7 @@ def train(
     started = time.time() - elapsed
     while step < config.iterations:
         model.train()
-        out = step_fn(step, rng, config.batch // ranks.world)
-        if not torch.isfinite(out["loss"]) or not all(torch.isfinite(p).all() for p in model.parameters()):
-            raise RuntimeError(
-                f"training diverged at step {step} (loss {out['loss'].item():.4g}); {out_dir} keeps its last "
-                f"good checkpoint: resume with a smaller --lr"
-            )
-        optimizer.zero_grad()
-        out["loss"].backward()
-        if ranks.world > 1:
-            ranks.average_gradients(model)
-        optimizer.step()
-        if ranks.world > 1:
-            for buffer in model.buffers():  # BatchNorm statistics: rank 0's, so that every rank holds the same
-                dist.broadcast(buffer.data, 0)
-            ranks.check_in_step(model, step + 1)
+        out = _step(model, optimizer, step_fn(step, rng, config.batch // ranks.world), ranks, step, out_dir)
         losses.append(float(out["loss"].detach()))
         if ema:
             ema.update_parameters(model)
@@ -297,6 +261,52 @@ def train(
                 dist.barrier()
     bar.close()
     return figures if ranks.leader else {}
+
+
+def _resume(model, optimizer, rng: np.random.Generator, config: LoopConfig, last: Path, ranks: Ranks) -> tuple:
+    """Load ``last`` (the model, optimiser, this rank's stream) if it exists, else ``config.init``'s weights if
+    given; returns (the checkpoint or None, (step, best score, elapsed seconds, history))."""
+    if not last.exists():
+        if config.init:
+            load_weights(model, Path(config.init))
+            log.info(f"starting from the weights of {config.init}")
+        return None, (0, -np.inf, 0.0, [])
+    state = load_checkpoint(last, needs=("model", "config", "optimizer", "step", "rng"))
+    if config_of(model, network_config(state)) != model.config:
+        raise InputError(
+            f"{last} holds a network of another shape ({network_config(state)}), not "
+            f"{asdict(model.config)}: resume it with its own options, or train into another folder"
+        )
+    streams = state.get("rngs", [state["rng"]])
+    if len(streams) != ranks.world:
+        raise InputError(f"{last} was trained by {len(streams)} ranks, not {ranks.world}: resume it with as many")
+    model.load_state_dict(state["model"])
+    optimizer.load_state_dict(state["optimizer"])
+    for group in optimizer.param_groups:  # resuming with another --lr applies it (a manual schedule)
+        group["lr"] = config.lr
+    rng.bit_generator.state = streams[ranks.rank]
+    log.info(f"resuming from {last} at step {state['step']}")
+    return state, (state["step"], state["best"], state["elapsed"], state["history"])
+
+
+def _step(model, optimizer, out: dict, ranks: Ranks, step: int, out_dir: Path) -> dict:
+    """One optimisation step on the losses ``out`` (computed by the step function in training mode), the
+    gradients averaged over ranks; stops on a non-finite loss or weight, naming the checkpoint kept."""
+    if not torch.isfinite(out["loss"]) or not all(torch.isfinite(p).all() for p in model.parameters()):
+        raise RuntimeError(
+            f"training diverged at step {step} (loss {out['loss'].item():.4g}); {out_dir} keeps its last "
+            f"good checkpoint: resume with a smaller --lr"
+        )
+    optimizer.zero_grad()
+    out["loss"].backward()
+    if ranks.world > 1:
+        ranks.average_gradients(model)
+    optimizer.step()
+    if ranks.world > 1:
+        for buffer in model.buffers():  # BatchNorm statistics: rank 0's, so that every rank holds the same
+            dist.broadcast(buffer.data, 0)
+        ranks.check_in_step(model, step + 1)
+    return out
 
 
 def _gather_streams(rng: np.random.Generator, ranks: Ranks) -> list:

@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from deepslam.errors import InputError
 from deepslam.frontend.cells import CELL
 from deepslam.frontend.magicpoint import VARIANTS, MagicPointNet
 from deepslam.frontend.training.loop import LoopConfig, train
@@ -33,9 +34,9 @@ class TrainConfig(LoopConfig):
     def __post_init__(self):
         super().__post_init__()
         if self.variant not in VARIANTS:
-            raise ValueError(f"--variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
+            raise InputError(f"--variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
         if not 0 <= self.clean_share <= 1:
-            raise ValueError(f"--clean-share must lie in [0, 1], got {self.clean_share}")
+            raise InputError(f"--clean-share must lie in [0, 1], got {self.clean_share}")
 
 
 def cell_labels(corners: list[np.ndarray], size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:

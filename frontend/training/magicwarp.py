@@ -15,8 +15,10 @@ from typing import Literal, get_args
 import numpy as np
 import torch
 
+from deepslam.errors import InputError
 from deepslam.frontend.cells import points_to_cells_batch
-from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet, normalizer
+from deepslam.frontend.config import MagicWarpConfig
+from deepslam.frontend.magicwarp import MagicWarpNet, normalizer
 from deepslam.frontend.nets import read_weights
 from deepslam.frontend.training.loop import LoopConfig, train
 from deepslam.sim.homography import HomographyConfig
@@ -45,7 +47,7 @@ def warp_loss(
     large ones, so a pair the network is unsure of pulls its estimate less toward the mean.
     """
     if weighting not in LOSS_WEIGHTINGS:
-        raise ValueError(f"unknown loss weighting {weighting!r}; expected one of {', '.join(LOSS_WEIGHTINGS)}")
+        raise InputError(f"unknown loss weighting {weighting!r}; expected one of {', '.join(LOSS_WEIGHTINGS)}")
     projected = true_a @ H[:, :2, :2].transpose(1, 2) + H[:, None, :2, 2]
     depth = true_a @ H[:, 2:, :2].transpose(1, 2) + H[:, None, 2:, 2]
     error = ((projected / depth.clamp(min=0.1) - true_b) ** 2).sum(-1)
@@ -127,11 +129,11 @@ class TrainConfig(LoopConfig):
     def __post_init__(self):
         super().__post_init__()
         if self.loss_weighting not in LOSS_WEIGHTINGS:
-            raise ValueError(
+            raise InputError(
                 f"--loss-weighting must be one of {', '.join(LOSS_WEIGHTINGS)}, got {self.loss_weighting!r}"
             )
         if self.cauchy < 0:
-            raise ValueError(f"--cauchy must be 0 (the squared loss) or a positive scale, got {self.cauchy}")
+            raise InputError(f"--cauchy must be 0 (the squared loss) or a positive scale, got {self.cauchy}")
         self.pairs()  # raises on bad pair options
 
     def pairs(self, motion: float = 1.0) -> PairConfig:

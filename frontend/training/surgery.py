@@ -10,7 +10,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from deepslam.frontend.magicwarp import MagicWarpConfig, MagicWarpNet
+from deepslam.errors import InputError
+from deepslam.frontend.config import MagicWarpConfig
+from deepslam.frontend.magicwarp import MagicWarpNet
 from deepslam.frontend.nets import read_weights
 
 WIDENABLE = {"widths", "hidden", "head", "pool"}  # config fields --init may change: more units, weightless pooling
@@ -27,11 +29,11 @@ def embed_weights(model: nn.Module, weights: dict) -> None:
     """
     target = model.state_dict()
     if set(target) != set(weights):
-        raise ValueError("the weights have other layers than the network")
+        raise InputError("the weights have other layers than the network")
     for name, old in weights.items():
         new = target[name]
         if old.dim() != new.dim() or any(o > n for o, n in zip(old.shape, new.shape, strict=False)):
-            raise ValueError(f"{name}: {tuple(old.shape)} does not fit into {tuple(new.shape)}")
+            raise InputError(f"{name}: {tuple(old.shape)} does not fit into {tuple(new.shape)}")
         if old.dim() >= 2:
             new[: old.shape[0], old.shape[1] :] = 0
         new[tuple(slice(0, size) for size in old.shape)] = old
@@ -48,7 +50,7 @@ def deepened(config: MagicWarpConfig, weights: dict, blocks: int) -> tuple[Magic
     function in eval mode and nearly the same while training (batch statistics).
     """
     if blocks < config.blocks:
-        raise ValueError(f"cannot remove blocks ({config.blocks} per stage) and keep the function")
+        raise InputError(f"cannot remove blocks ({config.blocks} per stage) and keep the function")
     old, stages = config.blocks, len(config.widths) // config.blocks
     grown = {name: tensor for name, tensor in weights.items() if not name.startswith("encoder.")}
     widths = []
@@ -110,7 +112,7 @@ def load_weights(model: torch.nn.Module, path: Path) -> None:
     saved, wanted = config_of(model, config), asdict(model.config)
     other_shape = f"{path} holds a network of another shape ({config}), not {wanted}"
     if saved is None:
-        raise ValueError(f"{other_shape}: its layout differs")
+        raise InputError(f"{other_shape}: its layout differs")
     try:
         if isinstance(model, MagicWarpNet) and saved.blocks != model.config.blocks:
             saved, weights = deepened(saved, weights, model.config.blocks)
@@ -118,7 +120,7 @@ def load_weights(model: torch.nn.Module, path: Path) -> None:
             model.load_state_dict(weights)
             return
         if not {key for key, value in asdict(saved).items() if value != wanted[key]} <= WIDENABLE:
-            raise ValueError("its layout differs")
+            raise InputError("its layout differs")
         embed_weights(model, weights)
     except ValueError as error:
-        raise ValueError(f"{other_shape}: {error}") from None
+        raise InputError(f"{other_shape}: {error}") from None

@@ -1,0 +1,94 @@
+"""The odometry's and the pipeline's settings: plain dataclasses that import no solver, so that the command line and
+``deepslam.backend`` load them fast."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, get_args
+
+from deepslam.errors import InputError
+from deepslam.frontend.config import TrackerConfig
+
+Method = Literal["auto", "homography", "essential", "pycolmap"]
+METHODS: tuple[str, ...] = get_args(Method)
+MIN_MATCHES = 8  # fewer matches than this: no relative pose
+Scale = Literal["gt", "plane", "none"]
+SCALES: tuple[str, ...] = get_args(Scale)
+MAX_TURN_OF_TRANSLATION = 60.0  # degrees a fallback's translation may lie from the motion so far
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    prior_sigmas: tuple[float, ...] = (1e-4,) * 6
+    huber_k: float = 1.345
+    relinearize_threshold: float = 0.001
+    window: int | None = 50  # frames a pose stays after it was last used; None: never marginalised
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """Every documented field is an option of ``deepslam run`` and ``deepslam replay``."""
+
+    method: Method = field(
+        default="auto",
+        metadata={
+            "help": "relative pose: auto (for each pair of frames, ORB-SLAM's scores choose a homography, the "
+            "dominant plane, or an essential matrix, which also wins where pairs off the plane contradict the "
+            "homography's pose), homography, essential, or pycolmap"
+        },
+    )
+    scale: Scale = field(
+        default="gt",
+        metadata={
+            "help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane; "
+            "none = up to scale (the plane's distance taken as 1; drift after Sim(3) alignment only)"
+        },
+    )
+    plane_distance: float | None = field(
+        default=None,
+        metadata={"help": "first camera's distance (m) to the dominant plane for --scale plane (simulation: known)"},
+    )
+    keyframe_parallax: float = field(
+        default=10.0, metadata={"help": "median track motion (px) since the keyframe that makes a new keyframe"}
+    )
+    max_rotation_jump: float = field(
+        default=10.0,
+        metadata={
+            "help": "where a measured pose turns more than this many degrees away from the previous frame's estimate "
+            "(both seen from the same keyframe), the homography's or the essential matrix's pose is taken instead if "
+            f"it agrees with that estimate (rotation within this, translation within {MAX_TURN_OF_TRANSLATION:g} deg); "
+            "raise it for cameras that turn this fast between frames, 0 turns it off",
+            "min": 0,
+        },
+    )
+    min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
+    min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
+    reinitialise_after: int = 3  # this many lost frames in a row: the current frame becomes the keyframe
+    covariance: bool = True  # compute the latest pose's marginal covariance every frame
+    graph: GraphConfig = GraphConfig()  # the pose graph's noise and window
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise InputError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+        if self.scale not in SCALES:
+            raise InputError(f"unknown scale {self.scale!r}; expected one of {', '.join(SCALES)}")
+        if not (self.keyframe_parallax > 0 and self.min_parallax >= 0 and self.min_shared_tracks >= MIN_MATCHES):
+            raise InputError(
+                f"keyframe parallax must be positive, min parallax at least 0 and min shared tracks at least "
+                f"{MIN_MATCHES}, got {self.keyframe_parallax}, {self.min_parallax}, {self.min_shared_tracks}"
+            )
+        if self.plane_distance is not None and not self.plane_distance > 0:
+            raise InputError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
+        if not self.max_rotation_jump >= 0:
+            raise InputError(f"the largest rotation jump must be at least 0 degrees, got {self.max_rotation_jump}")
+        if self.reinitialise_after < 1:
+            raise InputError(f"reinitialise_after must be at least 1, got {self.reinitialise_after}")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """The front-end and the odometry. The default measures up to scale (``scale="none"``): a camera of
+    one's own has no ground-truth step lengths."""
+
+    tracker: TrackerConfig = TrackerConfig()
+    odometry: OdometryConfig = field(default_factory=lambda: OdometryConfig(scale="none"))

@@ -1,0 +1,59 @@
+"""What a drift sweep covers (``deepslam eval pipeline``): a plain dataclass that imports no solver."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from deepslam.backend.config import Method, OdometryConfig, Scale
+from deepslam.frontend.config import Frontend
+from deepslam.sim import trajectories
+from deepslam.sim.world import WorldName
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """What ``deepslam eval pipeline`` sweeps; every field is an option."""
+
+    worlds: tuple[WorldName, ...] = field(
+        default=("plane", "room"), metadata={"help": "simulated worlds: one textured wall and/or a room"}
+    )
+    trajectories: tuple[trajectories.Kind, ...] = field(
+        default=("circle", "figure8", "line", "random"), metadata={"help": "camera paths"}
+    )
+    frontends: tuple[Frontend, ...] = field(
+        default=("oracle", "magic", "classical"),
+        metadata={"help": "front-ends to compare (oracle: true projections with pixel noise, the reference)"},
+    )
+    noise: tuple[float, ...] = field(
+        default=(0.0, 0.25, 0.5, 1.0),
+        metadata={"help": "photometric noise magnitudes s (0 clean, 1 full)", "min": 0, "max": 2},
+    )
+    lighting: tuple[float, ...] = field(
+        default=(0.0, 0.3), metadata={"help": "amplitudes of a slow global brightness change", "min": 0, "max": 1}
+    )
+    frames: int = field(default=60, metadata={"help": "frames per run", "min": 2})
+    seeds: int = field(
+        default=12,
+        metadata={"help": "runs per cell, seeds 0..N-1 (each seed its own world: textures, layout)", "min": 1},
+    )
+    scale: Scale = field(
+        default="gt",
+        metadata={"help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the plane"},
+    )
+    method: Method = field(
+        default=OdometryConfig().method,
+        metadata={
+            "help": "relative pose of the odometry, as deepslam run --method: auto, homography, essential, pycolmap"
+        },
+    )
+
+    def cells(self) -> list[tuple]:
+        """(world, trajectory, noise, lighting, front-end) of every row, in table order."""
+        return [
+            (world, path, noise, light, frontend)
+            for world in self.worlds
+            for path in self.trajectories
+            for noise in self.noise
+            for light in self.lighting
+            for frontend in self.frontends
+        ]

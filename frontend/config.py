@@ -1,0 +1,132 @@
+"""The front-end's settings and the magic front-end's detector presets: plain dataclasses that import
+no network, so that the command line and ``deepslam.frontend`` load them fast."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, get_args
+
+from deepslam.errors import InputError
+
+POINT_BUDGET = 150  # points a front-end reports at most, by default (the oracle's too)
+BENCH_REPEATS = 100  # timed repetitions of a network's forward pass in its benchmark; the median is reported
+Frontend = Literal["magic", "classical", "oracle"]
+FRONTENDS: tuple[str, ...] = get_args(Frontend)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """A front-end and its options. The magic front-end runs MagicPoint at the evaluation threshold 0.001
+    with at most ``POINT_BUDGET`` points (the oracle's budget), then MagicWarp refined by snapping, and confirms and
+    polishes the pairs each pose is measured from; its detector is one of ``DETECTOR_PRESETS`` (S-HA in
+    one pass by default; S is topped up by S-HA on sparse frames). Every documented field is a ``deepslam run``
+    option."""
+
+    frontend: Frontend = field(
+        default="magic",
+        metadata={"help": "magic: MagicPoint+MagicWarp; classical: Shi-Tomasi+Lucas-Kanade; oracle: true projections"},
+    )
+    detector: Literal["S", "S-HA"] = field(
+        default="S-HA",
+        metadata={
+            "help": "MagicPoint of the magic front-end: S-HA (adapted to real photographs; one pass) or S "
+            "(Synthetic Shapes only; on the image enlarged 2x with two grid shifts, topped up by S-HA)"
+        },
+    )
+    detector_scale: Literal[1, 2] | None = field(
+        default=None,
+        metadata={
+            "help": "MagicPoint detects on the image enlarged this many times (default: the detector's preset; "
+            "S at scale 1 averages four grid shifts)"
+        },
+    )
+    top_up: bool = field(
+        default=True,
+        metadata={
+            "help": "from a frame where MagicPoint S finds fewer than 40 points (corner-poor walls such as grass) "
+            "until it finds 80 again, add S-HA's detections (--detector S only)"
+        },
+    )
+    warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
+    refine: bool = field(
+        default=True,
+        metadata={
+            "help": "refine MagicWarp's homography by snapping and a robust fit over the pairs it, the no-motion "
+            "and the constant-motion guess snap, so that the motion most detections agree with wins"
+        },
+    )
+    carry: bool | None = field(
+        default=None,
+        metadata={
+            "help": "report a track the detector misses for up to 20 frames, carried by MagicWarp's homography "
+            "and aligned to the frame it was last detected in (default: with --method auto or homography)"
+        },
+    )
+    ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
+    polish: bool = field(
+        default=True,
+        metadata={
+            "help": "confirm and polish the pairs each pose is measured from (a frame and its keyframe) by "
+            "Lucas-Kanade on contrast-normalised images, dropping those it moves 1.5 px or more (after a second "
+            "try from where the confirmed pairs' homography puts them) or that do not align back to their "
+            "keyframe point (magic front-end; --no-polish: correspondences from MagicPoint and MagicWarp alone)"
+        },
+    )
+    polish_warp: bool = field(
+        default=True,
+        metadata={
+            "help": "before polishing, warp the keyframe by the homography its pairs agree on, so that Lucas-Kanade "
+            "compares patches seen from about the same viewpoint (--no-polish-warp: the keyframe as it is)"
+        },
+    )
+    oracle_noise: float = field(
+        default=0.5,
+        metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
+    )
+    device: Literal["auto", "cpu", "cuda"] = field(
+        default="cpu", metadata={"help": "where the magic front-end's networks run: cpu, cuda, or auto"}
+    )
+    budget: int = POINT_BUDGET  # points a front-end reports at most
+
+
+DETECTOR_PRESETS: dict[str, dict] = {
+    "S": {"upsample": 2, "grid_shifts": 2, "subpixel": "parabola"},  # S needs the work-arounds on photographs
+    "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "parabola"},  # one pass
+}
+"""How the magic front-end runs each MagicPoint; ``TrackerConfig.detector_scale`` overrides ``upsample``
+(S at scale 1 then averages four grid shifts). S-HA keeps the plain parabola here: its own default, the
+parabola on the smoothed heatmap, localises better alone but drew end to end (S-HA model card)."""
+
+
+@dataclass(frozen=True)
+class MagicWarpConfig:
+    """Encoder widths (``blocks`` VGG blocks per stage, a 2x2 max-pool after each stage), the grid
+    the features are pooled to before the fully connected layers, and the hidden FC width."""
+
+    widths: tuple[int, ...] = field(
+        default=(64, 64, 128, 128, 128, 128),
+        metadata={
+            "help": "encoder widths, --blocks VGG blocks per 2x2 max-pool (a new run only: a resumed run keeps "
+            "its checkpoint's shape)",
+            "min": 1,
+        },
+    )
+    pooled: tuple[int, int] = (3, 5)
+    hidden: int = field(default=512, metadata={"help": "width of the hidden fully connected layer", "min": 1})
+    blocks: int = field(
+        default=2,
+        metadata={
+            "help": "VGG blocks per stage of the encoder; with --init, weights of fewer blocks per stage are "
+            "deepened: the new blocks start as identities",
+            "min": 1,
+        },
+    )
+
+    def __post_init__(self):
+        if not self.widths or min(self.widths) < 1 or min(self.pooled) < 1 or self.hidden < 1:
+            raise InputError(f"MagicWarp needs positive widths, pooled grid and hidden width, got {self}")
+        if self.blocks < 1 or len(self.widths) % self.blocks:
+            raise InputError(
+                f"MagicWarp needs a whole number of stages of at least one block: {len(self.widths)} "
+                f"widths do not make stages of {self.blocks} blocks"
+            )

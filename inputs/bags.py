@@ -1,0 +1,152 @@
+"""ROS 2 bags (a bare .mcap file or a rosbag2 folder), read with rosbags' standard typestore."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from deepslam.geometry import pose_matrix
+from deepslam.inputs.calibration import Calibration, Rectifier
+from deepslam.inputs.images import RAW_ENCODINGS, to_gray
+from deepslam.inputs.source import SourceError, SourceFrame, SourceOptions, pipeline_size
+from deepslam.inputs.timing import associate, check_order
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TransformStamped", "nav_msgs/msg/Odometry")
+
+
+class RosBag:
+    """A ROS 2 bag (a bare .mcap file or a rosbag2 folder), read with rosbags' standard typestore."""
+
+    kind = "ROS 2 bag"
+
+    def __init__(self, path: Path, options: SourceOptions):
+        from rosbags.highlevel import AnyReader
+
+        self.path, self.options = path, options
+        self.reader = AnyReader([path])
+        try:
+            self.reader.open()
+        except Exception as error:  # noqa: BLE001 - rosbags raises its own kinds for any unreadable bag
+            raise SourceError(f"{path}: not a readable ROS 2 bag ({error})") from None
+        topics = {c.topic: c.msgtype for c in self.reader.connections}
+        self.image_topic = self._topic(options.image_topic, IMAGE_TYPES, topics, "image", required=True)
+        self.info_topic = self._topic(options.camera_info_topic, ("sensor_msgs/msg/CameraInfo",), topics,
+                                      "camera info", required=False)  # fmt: skip
+        self.truth_topic = (
+            self._topic(options.groundtruth_topic, POSE_TYPES, topics, "ground truth", required=True)
+            if options.groundtruth_topic
+            else None
+        )
+        self.stamps, native = self._scan_images()
+        self.calibration = self._calibration(native)
+        self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
+        self.truth = self._truth()
+
+    def _topic(self, wanted: str | None, types: tuple[str, ...], topics: dict, what: str, required: bool) -> str | None:
+        listed = ", ".join(f"{t} ({k})" for t, k in sorted(topics.items()))
+        if wanted is not None:
+            if wanted not in topics:
+                raise SourceError(f"{self.path}: no topic {wanted}; the bag has {listed}")
+            if topics[wanted] not in types:
+                raise SourceError(f"{self.path}: {wanted} is a {topics[wanted]}, not one of {', '.join(types)}")
+            return wanted
+        matching = [t for t, k in topics.items() if k in types]
+        if len(matching) == 1:
+            return matching[0]
+        if matching or required:
+            which = "several" if matching else "no"
+            raise SourceError(f"{self.path}: {which} {what} topics; choose one with --{what.replace(' ', '-')}-topic "
+                              f"(the bag has {listed})")  # fmt: skip
+        return None
+
+    def _messages(self, topic: str):
+        connections = [c for c in self.reader.connections if c.topic == topic]
+        for connection, log_time, raw in self.reader.messages(connections=connections):
+            yield connection, log_time, self.reader.deserialize(raw, connection.msgtype)
+
+    @staticmethod
+    def _stamp(message, log_time: int) -> int:
+        header = getattr(message, "header", None)
+        stamp = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec if header is not None else 0
+        return stamp or log_time
+
+    def _image(self, connection, message) -> np.ndarray:
+        if connection.msgtype.endswith("CompressedImage"):
+            image = cv2.imdecode(np.frombuffer(bytes(message.data), np.uint8), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise SourceError(f"{self.path}: a {message.format!r} image on {connection.topic} does not decode")
+            if image.dtype == np.uint16:
+                image = (image >> 8).astype(np.uint8)
+            return image if image.ndim == 2 else to_gray(image, "bgr8" if image.shape[2] == 3 else "bgra8")
+        if message.encoding not in RAW_ENCODINGS:
+            raise SourceError(f"{self.path}: {connection.topic} has the unsupported encoding {message.encoding!r} "
+                              f"(supported: {', '.join(RAW_ENCODINGS)})")  # fmt: skip
+        channels, dtype = RAW_ENCODINGS[message.encoding]
+        data = np.frombuffer(bytes(message.data), np.uint8).reshape(message.height, message.step)
+        pixels = data[:, : message.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
+        if message.is_bigendian and dtype == np.uint16:
+            pixels = pixels.byteswap()
+        return to_gray(pixels.reshape(message.height, message.width, channels).squeeze(-1) if channels == 1
+                       else pixels.reshape(message.height, message.width, channels), message.encoding)  # fmt: skip
+
+    def _scan_images(self) -> tuple[list[int], tuple[int, int]]:
+        """Every image's stamp, checked in order and of one size, before any work."""
+        stamps, size = [], None
+        for connection, log_time, message in self._messages(self.image_topic):
+            shape = self._image(connection, message).shape
+            if size is not None and shape != size:
+                raise SourceError(f"{self.path}: images on {self.image_topic} change size "
+                                  f"({size[0]}x{size[1]} then {shape[0]}x{shape[1]})")  # fmt: skip
+            size = shape
+            stamps.append(self._stamp(message, log_time))
+        if not stamps:
+            raise SourceError(f"{self.path}: no messages on {self.image_topic}")
+        check_order(stamps, f"{self.path} {self.image_topic}")
+        return stamps, size
+
+    def _calibration(self, native: tuple[int, int]) -> Calibration:
+        if self.options.calibration is not None:
+            return Calibration.from_yaml(self.options.calibration, native)
+        if self.info_topic is None:
+            raise SourceError(f"{self.path}: no CameraInfo topic and no --calibration: the camera is unknown")
+        for _, _, info in self._messages(self.info_topic):
+            if (info.height, info.width) != native and info.height:
+                raise SourceError(f"{self.path}: {self.info_topic} is for {info.height}x{info.width} images, "
+                                  f"{self.image_topic} has {native[0]}x{native[1]}")  # fmt: skip
+            return Calibration.checked(info.k, list(info.d), info.distortion_model, native, self.info_topic)
+        raise SourceError(f"{self.path}: no messages on {self.info_topic}")
+
+    def _truth(self) -> dict[int, np.ndarray]:
+        if self.truth_topic is None:
+            return {}
+        stamps, poses = [], []
+        for _, log_time, message in self._messages(self.truth_topic):
+            stamps.append(self._stamp(message, log_time))
+            poses.append(_pose_of(message))
+        return {i: poses[j] for i, j in associate(self.stamps, stamps).items()}
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def frames_with_truth(self) -> int:
+        return len(self.truth)
+
+    def frames(self) -> Iterator[SourceFrame]:
+        for index, (connection, _, message) in enumerate(self._messages(self.image_topic)):
+            image = self.rectify(self._image(connection, message))
+            yield SourceFrame(self.stamps[index], image, self.rectify.K, self.truth.get(index))
+
+
+def _pose_of(message) -> np.ndarray:
+    """T_world_cam of a PoseStamped, TransformStamped or Odometry message."""
+    if hasattr(message, "transform"):
+        t, q = message.transform.translation, message.transform.rotation
+    else:
+        pose = message.pose.pose if hasattr(message.pose, "pose") else message.pose
+        t, q = pose.position, pose.orientation
+    return pose_matrix(np.array([t.x, t.y, t.z]), np.array([q.x, q.y, q.z, q.w]))

@@ -1,0 +1,112 @@
+"""What every input offers the pipeline (``Source``, ``SourceFrame``), how to read one (``SourceOptions``)
+and ``open_source``, which tells the kinds apart."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterator, Protocol
+
+import numpy as np
+
+from deepslam.errors import InputError
+
+if TYPE_CHECKING:
+    from deepslam.inputs.calibration import Calibration
+
+DEFAULT_SIZE = (120, 160)  # external images are resized to this (H, W) unless told otherwise
+
+
+class SourceError(InputError):
+    """An input the pipeline cannot run on; the message names what is wrong."""
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """How to read an input; every documented field is a ``deepslam replay`` option."""
+
+    image_topic: str | None = field(default=None, metadata={"help": "bags: the image topic (default: the only one)"})
+    camera_info_topic: str | None = field(
+        default=None, metadata={"help": "bags: the CameraInfo topic (default: the only one, if any)"}
+    )
+    groundtruth_topic: str | None = field(
+        default=None,
+        metadata={"help": "bags: ground truth as PoseStamped, TransformStamped or nav_msgs/Odometry (default: none)"},
+    )
+    calibration: str | None = field(
+        default=None,
+        metadata={
+            "help": "YAML with fx, fy, cx, cy and optionally distortion (a list), model (plumb_bob or equidistant), "
+            "width and height: the camera's calibration where the input carries none (it wins over the input's)",
+            "metavar": "FILE",
+        },
+    )
+    size: tuple[int, int] | None = field(
+        default=None,
+        metadata={
+            "help": "image size the pipeline runs at, multiples of 8 (default: a deepslam log's own, 120 160 for "
+            "other inputs)",
+            "metavar": ("H", "W"),
+            "min": 8,
+        },
+    )
+
+
+@dataclass
+class SourceFrame:
+    """One frame ready for the odometry: stamp (ns), image uint8 (H, W), K (3, 3), ground truth or None."""
+
+    stamp_ns: int
+    image: np.ndarray
+    K: np.ndarray
+    T_world_cam: np.ndarray | None
+
+
+class Source(Protocol):
+    kind: str
+    calibration: Calibration | None
+    frames_with_truth: int
+
+    def __len__(self) -> int: ...
+
+    def frames(self) -> Iterator[SourceFrame]: ...
+
+
+def pipeline_size(size: tuple[int, int] | None, native: tuple[int, int]) -> tuple[int, int]:
+    """The (H, W) the pipeline runs an input of ``native`` size at: ``size``, or ``DEFAULT_SIZE``."""
+    chosen = size or DEFAULT_SIZE
+    if chosen[0] % 8 or chosen[1] % 8:
+        raise SourceError(f"--size {chosen[0]} {chosen[1]}: height and width must be multiples of 8")
+    return chosen
+
+
+def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> Source:
+    """The input at ``path`` as a checked ``Source``: a deepslam log, a ROS 2 bag (.mcap file or rosbag2
+    folder), a TUM RGB-D folder or an EuRoC/ASL folder, told apart by what they contain."""
+    from deepslam.inputs.bags import RosBag
+    from deepslam.inputs.deepslam_log import DeepslamLog
+    from deepslam.inputs.folders import EurocFolder, TumFolder
+    from deepslam.logs.reader import LogError, check_log, read_metadata
+
+    path = Path(path)
+    if not path.exists():
+        raise SourceError(f"{path}: no such file or folder")
+    if path.is_dir():
+        if (path / "rgb.txt").exists():
+            return TumFolder(path, options)
+        if (path / "cam0" / "data.csv").exists() or (path / "mav0" / "cam0" / "data.csv").exists():
+            return EurocFolder(path, options)
+        if (path / "metadata.yaml").exists():
+            return RosBag(path, options)
+        raise SourceError(f"{path}: a folder that is neither a TUM RGB-D (rgb.txt), an EuRoC/ASL (cam0/data.csv) "
+                          f"nor a rosbag2 folder (metadata.yaml)")  # fmt: skip
+    try:
+        check_log(path)
+    except LogError as error:
+        raise SourceError(str(error)) from None
+    try:
+        read_metadata(path)
+        is_ours = not any((options.image_topic, options.camera_info_topic, options.groundtruth_topic))
+    except LogError:
+        is_ours = False
+    return DeepslamLog(path, options) if is_ours else RosBag(path, options)

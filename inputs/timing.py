@@ -1,0 +1,41 @@
+"""Time on inputs: exact nanoseconds from decimal seconds, order checks and TUM's association of
+ground truth to images."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deepslam.inputs.source import SourceError
+
+MAX_TIME_GAP_NS = 20_000_000  # ground truth further than this from an image is not associated (TUM's 0.02 s)
+
+
+def seconds_to_ns(text: str) -> int:
+    """Integer nanoseconds of decimal seconds such as "1305031102.175304" (no float rounding)."""
+    whole, _, fraction = text.partition(".")
+    return int(whole) * 1_000_000_000 + int((fraction + "000000000")[:9])  # exact: no float rounding
+
+
+def check_order(stamps: list[int], what: str) -> None:
+    """Raise ``SourceError`` naming ``what`` unless ``stamps`` (ns) strictly increase."""
+    for index, (a, b) in enumerate(zip(stamps, stamps[1:], strict=False)):
+        if b <= a:
+            raise SourceError(f"{what}: timestamps out of order at frame {index + 1} ({a} then {b} ns)")
+
+
+def associate(stamps: list[int], truth_stamps: list[int], max_gap_ns: int = MAX_TIME_GAP_NS) -> dict[int, int]:
+    """TUM's association: pairs (image i, truth j) closest in time first, each used once, within
+    ``max_gap_ns``; returns {i: j}."""
+    if not stamps or not truth_stamps:
+        return {}
+    truth = np.asarray(truth_stamps, np.int64)
+    candidates = []
+    for i, t in enumerate(stamps):
+        near = np.nonzero(np.abs(truth - t) < max_gap_ns)[0]
+        candidates += [(abs(int(truth[j]) - t), i, int(j)) for j in near]
+    pairs, used = {}, set()
+    for _, i, j in sorted(candidates):
+        if i not in pairs and j not in used:
+            pairs[i] = j
+            used.add(j)
+    return pairs
