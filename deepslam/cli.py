@@ -19,7 +19,17 @@ log = logging.getLogger("deepslam")
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    """Help that shows every default and keeps the descriptions' line breaks."""
+    """Help that shows each default once, as it would be typed (values apart by spaces), and keeps the
+    descriptions' line breaks. No default is shown where there is none, where the text already says it, or
+    for a flag that is off."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if "default" in text or default in (None, False, argparse.SUPPRESS) or action.required:
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
 
 
 def _version() -> str:

@@ -16,6 +16,18 @@ import types
 import typing
 from typing import Any, Literal, get_args, get_origin
 
+GROUP_TITLES = {  # what each config's options set, as the help titles them
+    "ScenarioConfig": "scenario (the simulated world, path and camera)",
+    "TrackerConfig": "front-end",
+    "OdometryConfig": "odometry",
+    "SourceOptions": "input",
+    "SweepConfig": "sweep",
+    "Workers": "parallel work",
+    "MagicWarpConfig": "network",
+    "TrainConfig": "training",
+    "AdaptConfig": "homographic adaptation and training",
+}
+
 
 def number_type(kind: type, low: float | None = None, high: float | None = None, name: str = ""):
     """An argparse type: a finite number of ``kind`` within [low, high]."""
@@ -85,7 +97,7 @@ def options_of(config: type) -> list[str]:
 def add_options(parser: argparse.ArgumentParser, config: type, exclude: tuple[str, ...] = ()) -> None:
     """Add an option for every documented field of the dataclass ``config`` (but ``exclude``)."""
     hints = typing.get_type_hints(config)
-    group = parser.add_argument_group(f"{config.__name__} options")
+    group = parser.add_argument_group(GROUP_TITLES.get(config.__name__, f"{config.__name__} options"))
     for field in dataclasses.fields(config):
         meta = _metadata(config, field.name)
         if not meta or field.name in exclude:

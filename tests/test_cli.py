@@ -1,4 +1,5 @@
 import json
+import re
 import shutil
 
 import pytest
@@ -29,8 +30,12 @@ def test_every_command_explains_its_options(capsys):
         assert exit_info.value.code == 0
         out = capsys.readouterr().out
         assert "usage: deepslam" in out
-        if argv[0] in ("run", "train"):
+        if argv[0] in ("run", "train") and "export" not in argv:
             assert "(default: " in out  # --help shows every default
+        flat = " ".join(out.split())
+        assert "(default: None)" not in flat and "(default: False)" not in flat  # no default where there is none
+        assert not re.search(r"default[^()]*\) \(default: ", flat)  # each default once
+        assert "Config options" not in out and "SourceOptions" not in out  # groups say what they set
 
 
 def test_contract_flags_of_run():
@@ -196,3 +201,16 @@ def test_a_local_ray_cluster_gives_the_serial_bytes(tmp_path, monkeypatch):
     assert main([*argv, "--out", str(tmp_path / "ray"), "--ray", "--jobs", "2"]) == 0
     name = "realimages.json"
     assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "ray" / name).read_bytes()
+
+
+def test_help_and_version_start_without_torch():
+    import subprocess
+    import sys
+
+    for argv in (["--version"], ["--help"], ["run", "--help"], ["eval", "pipeline", "--help"]):
+        code = (
+            "import sys\nfrom deepslam.cli import main\ntry:\n    main(" + repr(argv) + ")\nexcept SystemExit:\n"
+            "    pass\nprint('torch' in sys.modules, 'gtsam' in sys.modules)"
+        )
+        result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert result.stdout.strip().splitlines()[-1] == "False False", (argv, result.stderr)
