@@ -92,11 +92,13 @@ def _write_result(out: Path, name: str, result: dict, lines: list[str], plots=No
 
 
 def _eval_detector(args: argparse.Namespace) -> None:
+    from deepslam.frontend.config import EXTRACTION_PRESETS
     from deepslam.frontend.evaluation import detector as ev
 
     _check_folder(args.out)
 
-    chosen = _detectors(args.detectors, args.weights, **ev.SHAPES_EXTRACTION)
+    shapes = EXTRACTION_PRESETS["shapes"]
+    chosen = _detectors(args.detectors, args.weights, threshold=shapes.threshold, border=shapes.border)
     result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed, _workers(args))
     _write_result(
         args.out, "detector", result, ev.table_lines(result) + [""] + ev.category_lines(result), ev.save_plots

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, get_args
 
+import numpy as np
+
 from deepslam.errors import InputError
 
 POINT_BUDGET = 150  # points a front-end reports at most, by default (the oracle's too)
@@ -89,13 +91,71 @@ class TrackerConfig:
     budget: int = POINT_BUDGET  # points a front-end reports at most
 
 
-DETECTOR_PRESETS: dict[str, dict] = {
-    "S": {"upsample": 2, "grid_shifts": 2, "subpixel": "parabola"},  # S needs the work-arounds on photographs
-    "S-HA": {"upsample": 1, "grid_shifts": 1, "subpixel": "parabola"},  # one pass
+Subpixel = Literal["none", "parabola", "centroid", "smoothed"]
+SUBPIXEL: tuple[str, ...] = get_args(Subpixel)
+GRID_SHIFT_COUNTS = (1, 2, 4)  # heatmaps of the image shifted against the 8-pixel cell grid that MagicPoint averages
+
+
+@dataclass(frozen=True)
+class ExtractionConfig:
+    """How MagicPoint turns its heatmap into points.
+
+    ``threshold`` on the heatmap, ``nms_radius`` and ``border`` (pixels), at most ``top_k`` points (None:
+    all), ``subpixel`` ("none", "parabola" fit at each peak, "smoothed": the parabola on the heatmap smoothed
+    first, or "centroid" of its 3x3 neighbourhood). ``grid_shifts`` 4 averages the heatmaps of the image
+    shifted by 0 and 4 pixels in x and y against the cell grid (3-4x the time; 2: the diagonal shift only), so
+    that detections move with the image more faithfully. ``upsample`` s > 1 detects on the image enlarged s
+    times (bilinear; NMS radius and border scale with it, points come back in input pixels), at about s^2
+    the time. Named presets: ``EXTRACTION_PRESETS`` (a network's own, evaluations'), ``DETECTOR_PRESETS``
+    (the magic front-end's).
+    """
+
+    threshold: float = 0.015
+    nms_radius: int = 4
+    border: int = 4
+    top_k: int | None = None
+    grid_shifts: int = 1
+    subpixel: Subpixel = "none"
+    upsample: int = 1
+
+    def __post_init__(self):
+        if self.grid_shifts not in GRID_SHIFT_COUNTS:
+            raise InputError(f"grid_shifts must be one of {list(GRID_SHIFT_COUNTS)}, got {self.grid_shifts}")
+        if not isinstance(self.upsample, int) or not 1 <= self.upsample <= 4:
+            raise InputError(f"upsample must be an integer from 1 to 4, got {self.upsample}")
+        if (
+            not np.isfinite(self.threshold)
+            or self.nms_radius < 0
+            or self.border < 0
+            or (self.top_k is not None and self.top_k < 1)
+        ):
+            raise InputError(
+                f"the detection threshold must be finite, nms_radius and border at least 0 and top_k at least 1, "
+                f"got {self.threshold}, {self.nms_radius}, {self.border}, {self.top_k}"
+            )
+        if self.subpixel not in SUBPIXEL:
+            raise InputError(f"subpixel must be one of {', '.join(SUBPIXEL)}, got {self.subpixel!r}")
+
+
+EXTRACTION_PRESETS: dict[str, ExtractionConfig] = {
+    "default": ExtractionConfig(),  # MagicPoint S and L: the paper's threshold, whole pixels
+    "S-HA": ExtractionConfig(subpixel="smoothed"),  # S-HA's own: chosen on the validation photographs (model card)
+    # the Synthetic Shapes table (and training's validation on it): no border removal, as the ground truth has
+    # corners up to the image edge (2.6% of them lie within 4 px of it)
+    "shapes": ExtractionConfig(threshold=0.001, border=0),
+    "photo validation": ExtractionConfig(threshold=0.001, subpixel="centroid"),  # S-HA training's repeatability
 }
-"""How the magic front-end runs each MagicPoint; ``TrackerConfig.detector_scale`` overrides ``upsample``
-(S at scale 1 then averages four grid shifts). S-HA keeps the plain parabola here: its own default, the
-parabola on the smoothed heatmap, localises better alone but drew end to end (S-HA model card)."""
+"""A network's own extraction (by variant; "default" for the others) and the evaluations'."""
+
+DETECTOR_PRESETS: dict[str, ExtractionConfig] = {
+    # S needs the work-arounds on photographs: the image enlarged 2x, two grid shifts
+    "S": ExtractionConfig(threshold=0.001, top_k=POINT_BUDGET, grid_shifts=2, subpixel="parabola", upsample=2),
+    "S-HA": ExtractionConfig(threshold=0.001, top_k=POINT_BUDGET, subpixel="parabola"),  # one pass
+}
+"""How the magic front-end runs each MagicPoint (``top_k`` becomes ``TrackerConfig.budget``);
+``TrackerConfig.detector_scale`` overrides ``upsample`` (S at scale 1 then averages four grid shifts). S-HA
+keeps the plain parabola here: its own default, the parabola on the smoothed heatmap, localises better alone
+but drew end to end (S-HA model card)."""
 
 
 @dataclass(frozen=True)

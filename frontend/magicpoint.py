@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -13,8 +13,9 @@ from torch import nn
 
 from deepslam.errors import InputError
 from deepslam.frontend.cells import CELL
+from deepslam.frontend.config import EXTRACTION_PRESETS, ExtractionConfig
 from deepslam.frontend.nets import fold_batchnorm, load_network, pooling, vgg_block
-from deepslam.frontend.points import SUBPIXEL, Subpixel, check_image, extract_points
+from deepslam.frontend.points import check_image, extract_points
 
 WEIGHTS = Path(__file__).parent / "weights"
 
@@ -35,7 +36,6 @@ VARIANTS = {
     "L": MagicPointConfig((64, 64, 128, 128), 256),
     "S-HA": MagicPointConfig((8, 8, 16, 16), 32, "blur"),  # S on real photographs: homographic adaptation
 }
-INFERENCE_DEFAULTS: dict[str, dict] = {"S-HA": {"subpixel": "smoothed"}}  # a variant's own extraction (model card)
 
 
 class MagicPointNet(nn.Module):
@@ -78,57 +78,33 @@ def _as_tensor(image: np.ndarray) -> torch.Tensor:
 class MagicPoint:
     """The shipped MagicPoint, ready for inference (BatchNorm folded, eval mode).
 
-    ``threshold``, ``nms_radius`` (pixels), ``border`` (pixels), ``top_k`` and ``subpixel`` ("none",
-    "parabola" fit at each peak, "smoothed": the parabola on the heatmap smoothed first, or "centroid" of
-    its 3x3 neighbourhood) set point extraction.
-    ``grid_shifts`` 4 averages the heatmaps of the image shifted by 0 and 4 pixels in x and y against
-    the 8-pixel cell grid (3-4x the time; 2: the diagonal shift only): detections then move with the
-    image more faithfully (the single pass is not shift-equivariant within a cell).
-    ``device`` is where the network runs ("cpu" or "cuda").
-    ``upsample`` s > 1 detects on the image enlarged s times (bilinear; the NMS radius and border scale
-    with it, points come back in input pixels): the small corners of real photographs then come
-    closer to the scale of its synthetic training shapes, at about s^2 the time.
+    Args:
+        net: the network.
+        extraction: how points are extracted (``ExtractionConfig``; default: ``EXTRACTION_PRESETS["default"]``).
+        device: where the network runs ("cpu" or "cuda").
+        **options: fields of ``extraction`` to change, e.g. ``threshold=0.001``.
     """
 
-    def __init__(
-        self,
-        net: MagicPointNet,
-        threshold: float = 0.015,
-        nms_radius: int = 4,
-        border: int = 4,
-        top_k: int | None = None,
-        grid_shifts: int = 1,
-        subpixel: Subpixel = "none",
-        upsample: int = 1,
-        device: str = "cpu",
-    ):
-        if grid_shifts not in GRID_SHIFTS:
-            raise InputError(f"grid_shifts must be one of {sorted(GRID_SHIFTS)}, got {grid_shifts}")
-        if not isinstance(upsample, int) or not 1 <= upsample <= 4:
-            raise InputError(f"upsample must be an integer from 1 to 4, got {upsample}")
-        if not np.isfinite(threshold) or nms_radius < 0 or border < 0 or (top_k is not None and top_k < 1):
-            raise InputError(
-                f"the detection threshold must be finite, nms_radius and border at least 0 and top_k at least 1, "
-                f"got {threshold}, {nms_radius}, {border}, {top_k}"
-            )
-        if subpixel not in SUBPIXEL:
-            raise InputError(f"subpixel must be one of {', '.join(SUBPIXEL)}, got {subpixel!r}")
+    def __init__(self, net: MagicPointNet, extraction: ExtractionConfig | None = None, device: str = "cpu", **options):
+        self.extraction = replace(extraction or EXTRACTION_PRESETS["default"], **options)
         self.device = torch.device(device)
         self.net = fold_batchnorm(net).to(self.device)
-        self.threshold, self.nms_radius, self.border, self.top_k = threshold, nms_radius, border, top_k
-        self.grid_shifts, self.subpixel, self.upsample = grid_shifts, subpixel, upsample
 
     @classmethod
-    def pretrained(cls, variant: str = "S", path: str | Path | None = None, **options) -> "MagicPoint":
-        """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint; the
-        variant's ``INFERENCE_DEFAULTS`` apply unless ``options`` say otherwise."""
+    def pretrained(
+        cls, variant: str = "S", path: str | Path | None = None, device: str = "cpu", **options
+    ) -> "MagicPoint":
+        """Load the weights shipped in ``frontend/weights`` (no download) or a training checkpoint, with the
+        variant's own extraction (``EXTRACTION_PRESETS``) changed by ``options`` (an ``extraction`` config, or
+        some of its fields)."""
         if variant not in VARIANTS:
             raise InputError(f"unknown MagicPoint variant {variant!r}; expected one of {', '.join(VARIANTS)}")
         path = Path(path) if path else WEIGHTS / f"magicpoint_{variant}.pt"
         if not path.exists():
             raise FileNotFoundError(f"no MagicPoint weights at {path}; train them with `deepslam train magicpoint`")
         net = load_network(path, MagicPointNet, MagicPointConfig)
-        return cls(net, **{**INFERENCE_DEFAULTS.get(variant, {}), **options})
+        own = options.pop("extraction", None) or EXTRACTION_PRESETS.get(variant, EXTRACTION_PRESETS["default"])
+        return cls(net, own, device, **options)
 
     @torch.inference_mode()
     def cells(self, image: np.ndarray) -> np.ndarray:
@@ -138,11 +114,11 @@ class MagicPoint:
     @torch.inference_mode()
     def heatmap(self, image: np.ndarray) -> np.ndarray:
         """Per-pixel corner probability, float32 (H, W)."""
-        if self.grid_shifts == 1:
+        if self.extraction.grid_shifts == 1:
             return cells_to_heatmap(torch.softmax(self.net(_as_tensor(image).to(self.device)), dim=1))[0].cpu().numpy()
         image = check_image(image, CELL)
         h, w = image.shape
-        shifts = GRID_SHIFTS[self.grid_shifts]
+        shifts = GRID_SHIFTS[self.extraction.grid_shifts]
         batch = np.stack(
             [cv2.copyMakeBorder(image, dy, CELL - dy, dx, CELL - dx, cv2.BORDER_REFLECT_101) for dx, dy in shifts]
         )
@@ -174,13 +150,12 @@ class MagicPoint:
             >>> points.shape[1], len(points) >= 4
             (3, True)
         """
-        s = self.upsample
+        e = self.extraction
+        s = e.upsample
         if s > 1:
             h, w = check_image(image, CELL).shape
             image = cv2.resize(image, (w * s, h * s), interpolation=cv2.INTER_LINEAR)
-        points = extract_points(
-            self.heatmap(image), self.threshold, self.nms_radius * s, self.border * s, self.top_k, self.subpixel
-        )
+        points = extract_points(self.heatmap(image), e.threshold, e.nms_radius * s, e.border * s, e.top_k, e.subpixel)
         if s > 1:
             points[:, :2] = (points[:, :2] + 0.5) / s - 0.5  # pixel centres: x_enlarged + 0.5 = s (x + 0.5)
         return points

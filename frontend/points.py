@@ -5,13 +5,12 @@ Shared by MagicPoint and the classical detectors, so every detector is scored th
 
 from __future__ import annotations
 
-from typing import Literal, get_args
-
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
 from deepslam.errors import InputError
+from deepslam.frontend.config import SUBPIXEL, Subpixel
 
 
 def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
@@ -44,8 +43,6 @@ def nms_points(points: np.ndarray, radius: float) -> np.ndarray:
     return points[~suppressed]
 
 
-Subpixel = Literal["none", "parabola", "centroid", "smoothed"]
-SUBPIXEL: tuple[str, ...] = get_args(Subpixel)
 SMOOTHING_SIGMA = 1.5  # pixels, of "smoothed"; chosen on the validation photographs (S-HA model card)
 
 

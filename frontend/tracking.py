@@ -332,13 +332,11 @@ class ToppedUpDetector:
 
 def _shipped(variant: str, config: TrackerConfig) -> MagicPoint:
     """The shipped MagicPoint ``variant`` as the magic front-end runs it (``DETECTOR_PRESETS``)."""
-    options = dict(DETECTOR_PRESETS[variant])
+    extraction = replace(DETECTOR_PRESETS[variant], top_k=config.budget)
     if config.detector_scale is not None:
-        options["upsample"] = config.detector_scale
-        if variant == "S":
-            options["grid_shifts"] = 4 if config.detector_scale == 1 else 2
-    device = resolve_device(config.device)
-    return MagicPoint.pretrained(variant, threshold=0.001, top_k=config.budget, device=device, **options)
+        grid_shifts = (4 if config.detector_scale == 1 else 2) if variant == "S" else extraction.grid_shifts
+        extraction = replace(extraction, upsample=config.detector_scale, grid_shifts=grid_shifts)
+    return MagicPoint.pretrained(variant, extraction=extraction, device=resolve_device(config.device))
 
 
 def magic_detector(config: TrackerConfig) -> MagicPoint | ToppedUpDetector:

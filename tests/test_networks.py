@@ -453,3 +453,14 @@ def test_a_sparse_frame_is_topped_up_with_the_second_detectors_points_that_are_n
     assert len(detector.detect(image)) == 14  # still topped up until the primary finds enough_points again ...
     np.testing.assert_array_equal(detector.detect(image)[:, :2], dense)  # ... as here: nothing added
     np.testing.assert_array_equal(detector.detect(image)[:, :2], middle)  # and not before it falls under min_points
+
+
+def test_extraction_settings_have_one_source_with_named_presets():
+    from deepslam.frontend.config import DETECTOR_PRESETS, EXTRACTION_PRESETS, ExtractionConfig
+
+    assert MagicPoint.pretrained("S").extraction == EXTRACTION_PRESETS["default"] == ExtractionConfig()
+    assert MagicPoint.pretrained("S-HA").extraction.subpixel == "smoothed"  # S-HA's own
+    changed = MagicPoint.pretrained("S-HA", extraction=DETECTOR_PRESETS["S-HA"], top_k=7).extraction
+    assert changed.subpixel == "parabola" and changed.top_k == 7 and changed.threshold == 0.001
+    with pytest.raises(ValueError, match="grid_shifts"):
+        ExtractionConfig(grid_shifts=3)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from deepslam.frontend import MagicPoint
-from deepslam.frontend.config import MagicWarpConfig
+from deepslam.frontend.config import EXTRACTION_PRESETS, MagicWarpConfig
 from deepslam.frontend.magicpoint import MagicPointConfig
 from deepslam.frontend.magicwarp import MagicWarpNet
 from deepslam.frontend.training import magicpoint as train_magicpoint
@@ -345,7 +345,7 @@ def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_p
     with pytest.raises(ValueError, match="trained on labels of another"):
         adaptation.run(tmp_path / "ha", replace(config, warps=4))
     detector = MagicPoint.pretrained("S-HA", path=tmp_path / "ha" / "round2" / "best.pt")
-    assert detector.subpixel == "smoothed"  # the variant's own extraction default
+    assert detector.extraction == EXTRACTION_PRESETS["S-HA"]  # the variant's own extraction
     with pytest.raises(ValueError, match="no folder of photographs"):
         adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))
 

@@ -55,9 +55,6 @@ PAPER_TABLE = {  # the paper's Synthetic Shapes table: mAP clean, mAP noisy, MLE
     "Shi": (0.686, 0.157, 1.188, 1.383),
 }
 SWEEP = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
-SHAPES_EXTRACTION = {"threshold": 0.001, "border": 0}
-"""Point extraction for the Synthetic Shapes table (training validation too): no border removal, as the
-ground truth has corners up to the image edge (2.6% of them lie within 4 px of it)."""
 
 
 def available_detectors(

@@ -418,7 +418,8 @@ def _round_config(config: AdaptConfig, round_: int) -> AdaptConfig:
 
 
 def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
-    from deepslam.frontend.evaluation.detector import SHAPES_EXTRACTION, evaluate_set, sequence_repeatability
+    from deepslam.frontend.config import EXTRACTION_PRESETS
+    from deepslam.frontend.evaluation.detector import evaluate_set, sequence_repeatability
 
     stream = None
 
@@ -445,9 +446,9 @@ def _train_round(net, folder, views, labels, config, sequences, shapes) -> dict:
         return {"loss": loss}
 
     def validate(model: MagicPointNet) -> dict:
-        detector = MagicPoint(model, threshold=0.001, subpixel="centroid")
+        detector = MagicPoint(model, EXTRACTION_PRESETS["photo validation"])
         real = {c: sequence_repeatability(detector, s) for c, s in sequences.items()}
-        shapes_detector = MagicPoint(model, **SHAPES_EXTRACTION)
+        shapes_detector = MagicPoint(model, EXTRACTION_PRESETS["shapes"])
         clean, noisy = (evaluate_set(shapes_detector, items)["map"] for items in shapes)
         figures = {f"rep_{c}": r["repeatability"] for c, r in real.items()}
         figures |= {f"loc_{c}": r["localization_error"] for c, r in real.items()}

@@ -63,7 +63,8 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int
     """Train (or resume) into ``out_dir``. Validation: mAP and MLE on a fixed seeded Synthetic Shapes set,
     noisy and clean, extracted as the evaluation does; their mean ("map", both are targets) picks
     ``best.pt``."""
-    from deepslam.frontend.evaluation.detector import SHAPES_EXTRACTION, evaluate_set, noisy_set
+    from deepslam.frontend.config import EXTRACTION_PRESETS
+    from deepslam.frontend.evaluation.detector import evaluate_set, noisy_set
     from deepslam.frontend.magicpoint import MagicPoint
     from deepslam.sim.shapes import evaluation_set
 
@@ -84,7 +85,7 @@ def run(out_dir: Path, config: TrainConfig = TrainConfig(), size: tuple[int, int
         return {"loss": loss_fn(model(images.to(device)), labels.to(device))}
 
     def validate(net: MagicPointNet) -> dict:
-        detector = MagicPoint(net, **SHAPES_EXTRACTION)
+        detector = MagicPoint(net, EXTRACTION_PRESETS["shapes"])
         noisy, clean = evaluate_set(detector, validation), evaluate_set(detector, clean_validation)
         return {
             "map": (noisy["map"] + clean["map"]) / 2,
