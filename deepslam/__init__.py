@@ -12,6 +12,7 @@ _EXPORTS = {  # public name: the module that defines it
     "OdometryConfig": "backend.config",
     "DeepslamError": "errors",
     "InputError": "errors",
+    "Result": "results",
     "open_source": "inputs.source",
     "SourceOptions": "inputs.source",
 }

@@ -4,7 +4,6 @@ their config dataclasses (``deepslam.options`` turns those into options)."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import signal
@@ -81,13 +80,10 @@ def _check_folder(folder: Path) -> None:
         raise _UsageError(f"--out {folder}: cannot write under {existing}")
 
 
-def _write_result(out: Path, name: str, result: dict, lines: list[str], plots=None) -> None:
-    """Print a result's table and save it as .txt and .json (and its plots) under ``out``."""
-    print("\n".join(lines))
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{name}.txt").write_text("\n".join(lines) + "\n")
-    (out / f"{name}.json").write_text(json.dumps(result, indent=1))
-    for path in [*(plots(result, out) if plots else []), out / f"{name}.txt", out / f"{name}.json"]:
+def _save(result, out: Path) -> None:
+    """Print a result's table and write it, as .txt and .json, and its plots into the folder ``out``."""
+    print(result.table())
+    for path in result.save(out):
         log.info(f"wrote {path}")
 
 
@@ -99,10 +95,7 @@ def _eval_detector(args: argparse.Namespace) -> None:
 
     shapes = EXTRACTION_PRESETS["shapes"]
     chosen = _detectors(args.detectors, args.weights, threshold=shapes.threshold, border=shapes.border)
-    result = ev.report(chosen, args.per_category, args.sweep_per_category, args.seed, _workers(args))
-    _write_result(
-        args.out, "detector", result, ev.table_lines(result) + [""] + ev.category_lines(result), ev.save_plots
-    )
+    _save(ev.report(chosen, args.per_category, args.sweep_per_category, args.seed, _workers(args)), args.out)
 
 
 def _eval_warp(args: argparse.Namespace) -> None:
@@ -111,8 +104,9 @@ def _eval_warp(args: argparse.Namespace) -> None:
 
     _check_folder(args.out)
 
-    result = ev.breakdown_table(MagicWarp.pretrained(args.weights), args.runs, args.seed, workers=_workers(args))
-    _write_result(args.out, "warp", result, ev.table_lines(result), ev.save_plots)
+    _save(
+        ev.breakdown_table(MagicWarp.pretrained(args.weights), args.runs, args.seed, workers=_workers(args)), args.out
+    )
 
 
 def _eval_realimages(args: argparse.Namespace) -> None:
@@ -121,9 +115,10 @@ def _eval_realimages(args: argparse.Namespace) -> None:
     _check_folder(args.out)
 
     detectors = _detectors(args.detectors, args.weights)
-    result = ev.static_repeatability(detectors, args.frames, args.seed, jitter_px=args.jitter, workers=_workers(args))
-    name = f"realimages_jitter{args.jitter:g}" if args.jitter else "realimages"
-    _write_result(args.out, name, result, ev.static_lines(result), lambda r, out: ev.save_static_plots(r, out, name))
+    _save(
+        ev.static_repeatability(detectors, args.frames, args.seed, jitter_px=args.jitter, workers=_workers(args)),
+        args.out,
+    )
 
 
 def _workers(args: argparse.Namespace):
@@ -145,36 +140,25 @@ def _detectors(names: list[str] | None, weights: list[Path] | None = None, **ext
 
 
 def _eval_pipeline(args: argparse.Namespace) -> None:
-    from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix, save_plots
+    from deepslam.backend.evaluation.sweep import SweepConfig, pipeline_matrix
     from deepslam.frontend.config import TrackerConfig
 
     _check_folder(args.out)
 
-    rows = pipeline_matrix(_config(args, SweepConfig), _config(args, TrackerConfig), workers=_workers(args))
-    _write_result(args.out, "pipeline", {"rows": rows}, matrix_lines(rows), save_plots)
+    _save(pipeline_matrix(_config(args, SweepConfig), _config(args, TrackerConfig), workers=_workers(args)), args.out)
 
 
 def _bench(args: argparse.Namespace) -> None:
     _check_folder(args.out)
     if args.target == "pipeline":
-        from deepslam.backend.evaluation.bench import bench_pipeline, save_plots
+        from deepslam.backend.evaluation.bench import bench_pipeline
         from deepslam.frontend.config import TrackerConfig
 
-        timings = bench_pipeline(args.frames, tracker_config=_config(args, TrackerConfig), rounds=args.rounds)
-        units = {
-            name: "" if name.startswith("fps") else "MB" if name.startswith("memory") else "ms" for name in timings
-        }
-        lines = [f"  {name:<24} {value:8.2f} {units[name]}" for name, value in timings.items()]
-        _write_result(args.out, "bench_pipeline", timings, lines, lambda t, out: save_plots(t, out))
+        _save(bench_pipeline(args.frames, tracker_config=_config(args, TrackerConfig), rounds=args.rounds), args.out)
         return
     from deepslam.frontend.evaluation import bench
 
-    rows = bench.bench_detector(args.repeats) if args.target == "detector" else bench.bench_warp(args.repeats)
-    lines = [
-        "  " + "  ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()) for r in rows
-    ]
-    name = f"bench_{args.target}"
-    _write_result(args.out, name, {"rows": rows}, lines, lambda r, out: bench.save_plots(r["rows"], out, name))
+    _save(bench.bench_detector(args.repeats) if args.target == "detector" else bench.bench_warp(args.repeats), args.out)
 
 
 def _print_drift(drift: dict, scale: str) -> None:
@@ -215,12 +199,10 @@ def _replay(args: argparse.Namespace) -> None:
 def _drift(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation import analysis
 
-    results = analysis.analyse(args.logs, args.delta)
-    print("\n".join(analysis.table_lines(results)))
-    paths = analysis.save_plots(args.logs, args.out, args.delta)
-    if args.tum:
-        paths += [path for log_path in args.logs for path in analysis.export_tum(log_path, args.out)]
-    for path in paths:
+    _save(analysis.analyse(args.logs, args.delta), args.out)
+    for path in (
+        [path for log_path in args.logs for path in analysis.export_tum(log_path, args.out)] if args.tum else []
+    ):
         log.info(f"wrote {path}")
 
 

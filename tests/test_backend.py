@@ -1,3 +1,5 @@
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -351,13 +353,12 @@ def test_a_pose_that_turns_away_from_the_frame_before_gives_way_to_a_model_that_
 
 
 def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apart(tmp_path):
-    from deepslam.backend.evaluation.sweep import save_plots
-
     config = SweepConfig(
         worlds=("plane",), trajectories=("circle",), frontends=("oracle",), noise=(0.0, 0.5), lighting=(0.0,),
         frames=8, seeds=5,
     )  # fmt: skip
-    rows = pipeline_matrix(config, progress=False)
+    sweep = pipeline_matrix(config, progress=False)
+    rows = sweep.rows
     assert len(rows) == 2 and [r["noise"] for r in rows] == [0.0, 0.5]
     runs = rows[0]["runs"]
     assert [r["texture"] for r in runs] == ["page", "coffee", "brick", "grass", "mosaic"]  # named per seed
@@ -365,9 +366,13 @@ def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apa
     assert rows[0]["median_ate_se3"] == pytest.approx(np.median(textured)) and len(textured) == 4
     assert rows[0]["median_ate_se3_corner_poor"] == runs[3]["ate_se3"]  # grass, apart
     assert rows[0]["failed"] == 0  # the oracle never drifts 5% of its path
-    lines = matrix_lines(rows)
+    lines = sweep.table().splitlines()
+    assert lines == matrix_lines(rows)
     assert "3 grass" in lines[4] and any(line.split()[-5:] == [f"{r['ate_se3']:.4f}" for r in runs] for line in lines)
-    assert [p.name for p in save_plots({"rows": rows}, tmp_path)] == ["pipeline_ate_vs_noise.png"]
+    written = sweep.save(tmp_path)
+    assert [p.name for p in written] == ["pipeline_ate_vs_noise.png", "pipeline.txt", "pipeline.json"]
+    assert json.loads((tmp_path / "pipeline.json").read_text()) == {"rows": rows}
+    assert (tmp_path / "pipeline.txt").read_text() == sweep.table() + "\n"
 
 
 def test_sweep_measures_with_the_relative_pose_method_it_is_given():
@@ -376,7 +381,7 @@ def test_sweep_measures_with_the_relative_pose_method_it_is_given():
             worlds=("plane",), trajectories=("circle",), frontends=("oracle",), noise=(0.0,), lighting=(0.0,),
             frames=8, seeds=2, method=method,
         )  # fmt: skip
-        return [run["ate_se3"] for run in pipeline_matrix(config, progress=False)[0]["runs"]]
+        return [run["ate_se3"] for run in pipeline_matrix(config, progress=False).rows[0]["runs"]]
 
     assert SweepConfig().method == OdometryConfig().method  # the odometry's default unless told
     planar, general = ates("homography"), ates("essential")
@@ -437,7 +442,9 @@ def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
 
 
 def test_pipeline_bench_reports_the_median_round_and_the_spread_of_rounds():
-    timings = bench_pipeline(6, tracker_config=TrackerConfig(frontend="oracle"), rounds=3)
+    bench = bench_pipeline(6, tracker_config=TrackerConfig(frontend="oracle"), rounds=3)
+    timings = bench.timings
+    assert bench.to_dict() == timings and "odometry.graph" in bench.table()
     assert timings["fps_slowest_round"] <= timings["fps"] <= timings["fps_fastest_round"]
     assert timings["fps"] == pytest.approx(1e3 / timings["per_frame_total"])
     assert timings["odometry.graph"] > 0 and "memory_mb@end" not in timings  # short runs report no growth

@@ -109,9 +109,13 @@ def test_evo_agrees_with_deepslam_drift(oracle_log, tmp_path):
 
 def test_drift_plots_and_tum(oracle_log, tmp_path):
     path, _ = oracle_log
-    results = analysis.analyse([path, path])
-    assert len(analysis.table_lines(results)) == 2
-    assert analysis.save_plots([path], tmp_path)[0].stat().st_size > 10_000
+    comparison = analysis.analyse([path, path])
+    assert len(comparison.table().splitlines()) == 2  # the header and the one log
+    plots = comparison.save(tmp_path)
+    assert plots[0].stat().st_size > 10_000 and [p.name for p in plots[-2:]] == ["drift.txt", "drift.json"]
+    assert (
+        json.loads((tmp_path / "drift.json").read_text())[str(path)]["ate_se3"] == comparison.logs[str(path)]["ate_se3"]
+    )
     gt, est = analysis.export_tum(path, tmp_path)
     assert len(gt.read_text().splitlines()) == 25 and len(est.read_text().split("\n")[0].split()) == 8
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from deepslam.backend import drift
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
+from deepslam.results import Result
 
 
 def load_trajectories(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -30,7 +33,7 @@ def lost_frames(path: str | Path) -> int | None:
     return sum(flags) if flags else None
 
 
-def analyse(paths: list[str | Path], delta: int = 1) -> dict[str, dict]:
+def analyse(paths: list[str | Path], delta: int = 1) -> DriftComparison:
     """Drift figures per log, with its front-end and scale method from the log's metadata and its lost
     frames (-1 where the log does not say)."""
     results = {}
@@ -44,7 +47,26 @@ def analyse(paths: list[str | Path], delta: int = 1) -> dict[str, dict]:
             "scale": meta.get("odometry", {}).get("scale", "?"),
             "lost_frames": -1 if lost is None else lost,
         }
-    return results
+    return DriftComparison(results, delta)
+
+
+@dataclass
+class DriftComparison(Result):
+    """``deepslam drift``: per log (by path) its drift figures (``backend.drift.summary``, RPE over ``delta``
+    frames), front-end, scale and lost frames; its plots read the logs again."""
+
+    logs: dict[str, dict]
+    delta: int = 1
+    name: ClassVar[str] = "drift"
+
+    def to_dict(self) -> dict:
+        return self.logs
+
+    def lines(self) -> list[str]:
+        return table_lines(self.logs)
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_plots(list(self.logs), out, self.delta)
 
 
 def table_lines(results: dict[str, dict]) -> list[str]:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import resource
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -14,6 +16,7 @@ from deepslam.backend.pipeline import PipelineConfig
 from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
 from deepslam.progress import progress_bar
+from deepslam.results import Result
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 EARLY_FRAME = 500  # long runs: growth is measured from this frame to the last
@@ -30,7 +33,7 @@ def resident_mb() -> float:
 
 def bench_pipeline(
     frames: int = 60, seed: int = 0, tracker_config: TrackerConfig = TrackerConfig(), rounds: int = 5
-) -> dict[str, float]:
+) -> PipelineTimings:
     """Per-frame milliseconds of each stage (rendering not counted) of the front-end ``tracker_config``
     describes: the odometry's stages, and inside a magic front-end MagicPoint, MagicWarp, matching and
     ``polish_carried`` (contrast normalisation, alignment of carried tracks); the marginal covariance is off
@@ -52,7 +55,28 @@ def bench_pipeline(
     if rounds > 1:
         fps = [1e3 / means["per_frame_total"] for means in per_round]
         medians |= {"fps_slowest_round": min(fps), "fps_fastest_round": max(fps)}
-    return medians | growth
+    return PipelineTimings(medians | growth)
+
+
+@dataclass
+class PipelineTimings(Result):
+    """``deepslam bench pipeline``: milliseconds per frame of each stage, frames per second, and on long
+    runs memory (MB) and the graph's time at frame ``EARLY_FRAME`` and at the end (``timings``)."""
+
+    timings: dict[str, float]
+    name: ClassVar[str] = "bench_pipeline"
+
+    def to_dict(self) -> dict:
+        return self.timings
+
+    def lines(self) -> list[str]:
+        def unit(name: str) -> str:
+            return "" if name.startswith("fps") else "MB" if name.startswith("memory") else "ms"
+
+        return [f"  {name:<24} {value:8.2f} {unit(name)}" for name, value in self.timings.items()]
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_plots(self.timings, out)
 
 
 def _timed_run(frames: int, seed: int, tracker_config: TrackerConfig) -> tuple[dict[str, float], dict[str, float]]:

@@ -7,7 +7,9 @@ over ``FAILED_SHARE`` of its path length.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -17,6 +19,7 @@ from deepslam.backend.evaluation.runs import simulate
 from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
 from deepslam.parallel import Workers, parallel_map
+from deepslam.results import Result
 from deepslam.sim.scenario import ScenarioConfig
 
 FAILED_SHARE = 0.05
@@ -58,7 +61,7 @@ def pipeline_matrix(
     tracker_config: TrackerConfig = TrackerConfig(),
     progress: bool = True,
     workers: Workers = Workers(),
-) -> list[dict]:
+) -> Sweep:
     """One row per (world, trajectory, noise, lighting, front-end): the median ATE SE3 over seeds on
     photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
     cells, seeds = config.cells(), range(config.seeds)
@@ -66,7 +69,24 @@ def pipeline_matrix(
         raise InputError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
     pieces = [(cell, seed, config, tracker_config) for cell in cells for seed in seeds]
     results = parallel_map(run_cell, pieces, workers, _describe, "runs" if progress else None)
-    return [_row(cell, results[i * config.seeds : (i + 1) * config.seeds], config) for i, cell in enumerate(cells)]
+    return Sweep(
+        [_row(cell, results[i * config.seeds : (i + 1) * config.seeds], config) for i, cell in enumerate(cells)]
+    )
+
+
+@dataclass
+class Sweep(Result):
+    """``deepslam eval pipeline``: a row per (world, trajectory, noise, lighting, front-end) with its
+    medians, failures and every run (``matrix_lines``, ``save_plots``)."""
+
+    rows: list[dict]
+    name: ClassVar[str] = "pipeline"
+
+    def lines(self) -> list[str]:
+        return matrix_lines(self.rows)
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_plots(self.to_dict(), out)
 
 
 def _describe(piece: tuple) -> str:

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import torch
 
 from deepslam.errors import InputError
-from deepslam.frontend.config import BENCH_REPEATS
+from deepslam.frontend.config import BENCH_REPEATS, EXTRACTION_PRESETS
+from deepslam.results import Result
 
 PAPER_MS = {
     ("S", (120, 160)): 5.3,
@@ -35,7 +38,10 @@ def time_ms(fn: Callable[[], object], repeats: int = 100, warmup: int = 10) -> f
     return 1e3 * float(np.median(samples))
 
 
-def bench_detector(repeats: int = BENCH_REPEATS) -> list[dict]:
+PAPER_EXTRACTION = tuple(getattr(EXTRACTION_PRESETS["default"], k) for k in ("threshold", "nms_radius", "border"))
+
+
+def bench_detector(repeats: int = BENCH_REPEATS) -> NetworkTimings:
     """MagicPoint S and L forward passes and point extraction at 160x120 and 320x240."""
     from deepslam.frontend.magicpoint import VARIANTS, WEIGHTS, MagicPoint, MagicPointNet
     from deepslam.frontend.points import extract_points
@@ -53,7 +59,7 @@ def bench_detector(repeats: int = BENCH_REPEATS) -> list[dict]:
                 count = repeats if variant == "S" else max(10, repeats // 5)
                 forward = time_ms(lambda x=x, model=model: model.net(x), count)
             heatmap = model.heatmap(np.ascontiguousarray(image[: size[0], : size[1]]))
-            extraction = time_ms(lambda heatmap=heatmap: extract_points(heatmap, 0.015, 4, 4), repeats)
+            extraction = time_ms(lambda heatmap=heatmap: extract_points(heatmap, *PAPER_EXTRACTION), repeats)
             rows.append(
                 {
                     "model": f"MagicPoint{variant}",
@@ -64,10 +70,10 @@ def bench_detector(repeats: int = BENCH_REPEATS) -> list[dict]:
                     "weights": "shipped" if shipped else "untrained",
                 }
             )
-    return rows
+    return NetworkTimings(rows, "detector")
 
 
-def bench_warp(repeats: int = BENCH_REPEATS) -> list[dict]:
+def bench_warp(repeats: int = BENCH_REPEATS) -> NetworkTimings:
     """MagicWarp forward passes on 20x15x130 and 40x30x130 inputs (the shipped network, or the default
     architecture untrained when no weights are shipped)."""
     from deepslam.frontend.magicwarp import WEIGHTS, MagicWarp, MagicWarpNet
@@ -89,7 +95,32 @@ def bench_warp(repeats: int = BENCH_REPEATS) -> list[dict]:
                 "weights": "shipped" if shipped else "untrained",
             }
         )
-    return rows
+    return NetworkTimings(rows, "warp")
+
+
+@dataclass
+class NetworkTimings(Result):
+    """``deepslam bench detector`` or ``bench warp``: a row per network and input size (median forward pass
+    in ms, point extraction for MagicPoint, the paper's time, shipped or untrained weights)."""
+
+    rows: list[dict]
+    network: str  # "detector" or "warp"
+
+    @property
+    def name(self) -> str:
+        return f"bench_{self.network}"
+
+    def to_dict(self) -> dict:
+        return {"rows": self.rows}
+
+    def lines(self) -> list[str]:
+        def cell(key, value):
+            return f"{key}={value:.2f}" if isinstance(value, float) else f"{key}={value}"
+
+        return ["  " + "  ".join(cell(k, v) for k, v in row.items()) for row in self.rows]
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_plots(self.rows, out, self.name)
 
 
 def save_plots(rows: list[dict], out_dir, name: str) -> list:

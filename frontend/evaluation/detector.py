@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import cv2
 import numpy as np
@@ -11,6 +12,7 @@ import numpy as np
 from deepslam.frontend.evaluation.metrics import average_precision, localization_error, match_detections, merge
 from deepslam.parallel import Workers, parallel_map
 from deepslam.progress import progress_bar
+from deepslam.results import Result
 from deepslam.sim import noise
 from deepslam.sim.photos import REAL_IMAGE_EVALUATION
 from deepslam.sim.world import photo
@@ -105,16 +107,29 @@ def _detector_figures(piece: tuple) -> dict:
 
 def report(
     detectors: dict[str, Detector], per_category: int, sweep_per_category: int, seed: int, workers: Workers = Workers()
-) -> dict:
+) -> DetectorTable:
     """Everything ``deepslam eval detector`` shows: table, per category, noise sweep, noise types; the
     detectors run in parallel as ``workers`` says."""
     pieces = [(name, d, per_category, sweep_per_category, seed) for name, d in detectors.items()]
     figures = parallel_map(_detector_figures, pieces, workers, lambda p: f"detector {p[0]}", "detectors")
-    return {
-        "per_category_images": per_category,
-        "seed": seed,
-        "detectors": {name: f for name, f in zip(detectors, figures, strict=True)},
-    }
+    return DetectorTable(per_category, seed, {name: f for name, f in zip(detectors, figures, strict=True)})
+
+
+@dataclass
+class DetectorTable(Result):
+    """``deepslam eval detector``: per detector, mAP and MLE clean and noisy, per category, over the noise
+    sweep and per noise type (``detectors``), on ``per_category_images`` images a category of ``seed``."""
+
+    per_category_images: int
+    seed: int
+    detectors: dict[str, dict]
+    name: ClassVar[str] = "detector"
+
+    def lines(self) -> list[str]:
+        return table_lines(self.to_dict()) + [""] + category_lines(self.to_dict())
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_plots(self.to_dict(), out)
 
 
 def table_lines(result: dict) -> list[str]:
@@ -266,7 +281,7 @@ def static_repeatability(
     sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320)),
     jitter_px: float = 0.0,
     workers: Workers = Workers(),
-) -> dict:
+) -> Repeatability:
     """Frame-to-frame repeatability@N (eps=2) on real photographs seen by a static camera under
     changing light, clean and with the full noise of ``sim.noise``; with ``jitter_px`` > 0 every frame
     is also translated by up to that many pixels (the true homographies are used)."""
@@ -280,7 +295,30 @@ def static_repeatability(
     result: dict = {}
     for (name, _, size, noisy, *_), figure in zip(pieces, figures, strict=True):
         result.setdefault(name, {})[f"{size[1]}x{size[0]} {'noisy' if noisy else 'clean'}"] = figure
-    return result
+    return Repeatability(result, jitter_px)
+
+
+@dataclass
+class Repeatability(Result):
+    """``deepslam eval realimages``: per detector and condition (size, clean or noisy), repeatability@N, N
+    and the localisation error of repeated points (``detectors``), the camera moving up to ``jitter_px`` a
+    frame (files ``realimages``, or ``realimages_jitterPX``)."""
+
+    detectors: dict[str, dict]
+    jitter_px: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return f"realimages_jitter{self.jitter_px:g}" if self.jitter_px else "realimages"
+
+    def to_dict(self) -> dict:
+        return self.detectors
+
+    def lines(self) -> list[str]:
+        return static_lines(self.detectors)
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_static_plots(self.detectors, out, self.name)
 
 
 def static_lines(result: dict) -> list[str]:

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 import textwrap
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from deepslam.frontend.magicwarp import MagicWarp, MagicWarpNet, refine
 from deepslam.geometry import warp_points
 from deepslam.parallel import Workers, parallel_map
+from deepslam.results import Result
 from deepslam.sim.homography import image_corners
 from deepslam.sim.pointsets import MOTIONS, PointSetPair, make_pair, motion_homography, random_direction
 
@@ -135,14 +140,13 @@ def _cell_repeatability(piece: tuple) -> dict[str, np.ndarray]:
 
 def breakdown_table(
     warp: MagicWarp | None, runs: int = 50, seed: int = 0, progress: bool = True, workers: Workers = Workers()
-) -> dict:
+) -> WarpBreakdown:
     """The paper's 90% breakdown table for NN, RANSAC, MagicWarp, MagicWarp x2, MagicWarp refined by
     snapping and a robust fit (``frontend.magicwarp.refine``), and MagicWarp given image B without its
     spurious points but scored with them, "magicwarp_clean_b": how far a network that ignored spurious
     points would reach (the last four if ``warp``).
 
-    Returns {"breakdown": {density: {extra: {method: {motion: value}}}}, "curves": {motion: {method:
-    mean repeatability per magnitude}} (medium density, 20% extra), "grids": {motion: magnitudes}}.
+    Returns a ``WarpBreakdown``.
     """
 
     methods = ["nearest_neighbour", "ransac"] + (
@@ -162,13 +166,32 @@ def breakdown_table(
             table[density][str(extra)].setdefault(method, {})[motion] = value
         if density == "medium" and extra == 0.2:
             curves[motion] = {method: reps[method].mean(0).tolist() for method in methods}
-    return {
-        "breakdown": table,
-        "curves": curves,
-        "grids": {m: g.tolist() for m, g in GRIDS.items()},
-        "runs": runs,
-        **({"motion_errors": motion_errors(warp, runs, seed)} if warp else {}),
-    }
+    grids = {m: g.tolist() for m, g in GRIDS.items()}
+    return WarpBreakdown(table, curves, grids, runs, motion_errors(warp, runs, seed) if warp else None)
+
+
+@dataclass
+class WarpBreakdown(Result):
+    """``deepslam eval warp``: the 90% breakdown point of every method ({density: {extra: {method: {motion:
+    magnitude}}}}), match repeatability against magnitude at medium density and 20% extra points
+    (``curves``, on ``grids``), ``runs`` point sets a cell, and MagicWarp's errors per motion (or None)."""
+
+    breakdown: dict
+    curves: dict
+    grids: dict
+    runs: int
+    motion_errors: dict | None = None
+    name: ClassVar[str] = "warp"
+
+    def to_dict(self) -> dict:
+        figures = dataclasses.asdict(self)
+        return figures if self.motion_errors is not None else {k: v for k, v in figures.items() if k != "motion_errors"}
+
+    def lines(self) -> list[str]:
+        return table_lines(self.to_dict())
+
+    def plots(self, out: Path) -> list[Path]:
+        return save_plots(self.to_dict(), out)
 
 
 ERROR_MAGNITUDES = {
