@@ -25,7 +25,7 @@ class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescription
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         default = action.default
-        if "default" in text or default in (None, False, argparse.SUPPRESS) or action.required:
+        if "default" in text or default is None or default is False or default == argparse.SUPPRESS or action.required:
             return text
         shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else str(default)
         return f"{text} (default: {shown.replace('%', '%%')})"
@@ -296,6 +296,7 @@ def _train_commands(commands, detailed: bool) -> None:
 
 def _pipeline_commands(commands) -> None:
     from deepslam.backend.config import OdometryConfig
+    from deepslam.backend.evaluation.config import DriftConfig
     from deepslam.frontend.config import TrackerConfig
     from deepslam.inputs.source import SourceOptions
     from deepslam.sim.scenario import ScenarioConfig
@@ -337,7 +338,7 @@ def _pipeline_commands(commands) -> None:
     recover.add_argument("--out", type=Path, required=True, help="the finished log to write")
     drift = _command(commands, "drift", "ATE/RPE/final drift of logs, side by side, with plots", _drift)
     drift.add_argument("logs", type=Path, nargs="+", help="MCAP logs holding /groundtruth/pose and /estimate/pose")
-    drift.add_argument("--delta", type=number_type(int, 1), default=1, help="frame delta of the RPE")
+    add_options(drift, DriftConfig)
     drift.add_argument("--out", type=Path, default=Path("out/drift"), help="folder for the PNG plots (and TUM files)")
     drift.add_argument("--tum", action="store_true", help="also export both trajectories in TUM format")
 
@@ -345,6 +346,7 @@ def _pipeline_commands(commands) -> None:
 def _eval_commands(commands) -> None:
     from deepslam.backend.evaluation.config import SweepConfig
     from deepslam.frontend.config import TrackerConfig
+    from deepslam.frontend.evaluation.config import DetectorEvalConfig, RealImagesConfig, WarpEvalConfig
     from deepslam.parallel import Workers
 
     evaluate = commands.add_parser("eval", help="the paper's evaluations, and the pipeline's drift over a sweep")
@@ -353,16 +355,10 @@ def _eval_commands(commands) -> None:
         "MagicPointS, MagicPointL, MagicPointS-HA, MagicPointS-x4 = S with four grid shifts, "
         "MagicPointS-2x = S on the image enlarged 2x with two grid shifts, FAST, Harris, Shi"
     )
-    detector = _command(evals, "detector", "Synthetic Shapes mAP/MLE table, per category, noise sweeps", _eval_detector)
-    detector.add_argument(
-        "--per-category", type=number_type(int, 1), default=1000, help="images per category (paper: 1000)"
-    )
-    detector.add_argument(
-        "--sweep-per-category",
-        type=number_type(int, 1),
-        default=50,
-        help="images per category for the noise-magnitude and noise-type sweeps",
-    )
+    detector = _command(
+        evals, "detector", "Synthetic Shapes mAP/MLE table, per category, noise sweeps", _eval_detector,
+        DetectorEvalConfig,
+    )  # fmt: skip
     detector.add_argument("--detectors", nargs="+", metavar="NAME", help=f"evaluate only these ({detector_names})")
     warp = _command(
         evals,
@@ -370,23 +366,15 @@ def _eval_commands(commands) -> None:
         "MagicWarp 90%% breakdown-point table (nearest neighbour, RANSAC, MagicWarp raw, "
         "applied twice, refined, given image B without its spurious points) and plots",
         _eval_warp,
+        WarpEvalConfig,
     )
-    warp.add_argument("--runs", type=number_type(int, 1), default=50, help="random point sets per cell (paper: 50)")
     warp.add_argument("--weights", type=Path, help="MagicWarp weights or a checkpoint (default: the shipped ones)")
     real = _command(
         evals,
         "realimages",
         "repeatability and localisation error on real photographs under changing light",
         _eval_realimages,
-    )
-    real.add_argument("--frames", type=number_type(int, 2), default=20, help="frames per photograph sequence")
-    real.add_argument(
-        "--jitter",
-        type=number_type(float, 0),
-        default=0.0,
-        metavar="PX",
-        help="also move the camera up to this many pixels a frame (0: static, as the paper's Static "
-        "Corners; the files are then named realimages_jitterPX)",
+        RealImagesConfig,
     )
     real.add_argument("--detectors", nargs="+", metavar="NAME", help=f"evaluate only these ({detector_names})")
     for parser in (detector, real):
@@ -398,8 +386,6 @@ def _eval_commands(commands) -> None:
             help="also evaluate MagicPoint from these weights files or training checkpoints, each named by its path "
             "(one pass, S-HA's own sub-pixel peaks)",
         )
-    for parser in (detector, warp, real):
-        parser.add_argument("--seed", type=number_type(int, 0), default=0, help="seed of the evaluation data")
     _command(
         evals,
         "pipeline",
@@ -420,6 +406,7 @@ def _eval_commands(commands) -> None:
 
 
 def _bench_commands(commands) -> None:
+    from deepslam.backend.evaluation.config import PipelineBenchConfig
     from deepslam.frontend.config import BENCH_REPEATS, TrackerConfig
 
     bench = commands.add_parser("bench", help="timings on one CPU thread, beside the paper's")
@@ -438,17 +425,8 @@ def _bench_commands(commands) -> None:
         "pipeline",
         "per-frame time of every pipeline stage (no rendering)",
         _bench,
+        PipelineBenchConfig,
         TrackerConfig,
-    )
-    pipeline.add_argument(
-        "--frames", type=number_type(int, 2), default=60, help="frames of the simulated run, timed once a round"
-    )
-    pipeline.add_argument(
-        "--rounds",
-        type=number_type(int, 1),
-        default=5,
-        help="times the run is timed, each with a fresh front-end; every stage reports the median of its "
-        "per-round means (other work on the machine slows single rounds)",
     )
     pipeline.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
 

@@ -26,6 +26,11 @@ GROUP_TITLES = {  # what each config's options set, as the help titles them
     "MagicWarpConfig": "network",
     "TrainConfig": "training",
     "AdaptConfig": "homographic adaptation and training",
+    "DetectorEvalConfig": "evaluation",
+    "WarpEvalConfig": "evaluation",
+    "RealImagesConfig": "evaluation",
+    "PipelineBenchConfig": "benchmark",
+    "DriftConfig": "drift",
 }
 
 

@@ -11,9 +11,35 @@ import numpy as np
 from deepslam.errors import InputError
 
 POINT_BUDGET = 150  # points a front-end reports at most, by default (the oracle's too)
+CARRY_FRAMES = 20  # frames a track the detector misses is carried on (``MagicTracker.max_age``)
+TOP_UP_MIN_POINTS, TOP_UP_ENOUGH_POINTS = 40, 80  # S is topped up from below the first until it finds the second
 BENCH_REPEATS = 100  # timed repetitions of a network's forward pass in its benchmark; the median is reported
 Frontend = Literal["magic", "classical", "oracle"]
 FRONTENDS: tuple[str, ...] = get_args(Frontend)
+
+
+@dataclass(frozen=True)
+class PolishConfig:
+    """``sigma``: scale (px) of the local mean and deviation ``normalise_contrast`` removes; ``window``:
+    Lucas-Kanade window side (px); ``max_move``: a pair whose point moves this far (px) is dropped;
+    ``max_return``, ``return_scale``: so is a pair whose polished point, aligned back into the keyframe,
+    lands farther from its partner than ``max_return`` px and ``return_scale`` times the pairs' median (image
+    noise spreads every pair's return; ``max_return`` None: no backward check); ``warp_threshold``: inlier
+    threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the keyframe before aligning, or
+    None to align the keyframe as it is; ``retry_gate``: a pair not confirmed from its tracked position is
+    aligned again from where the confirmed pairs' homography puts it, if that lies within this many pixels of
+    the tracked position (None: no second try; nor is there one without the warp, ``warp_threshold`` None)."""
+
+    sigma: float = 3.0
+    window: int = 15
+    max_move: float = 1.5
+    max_return: float | None = 0.25
+    return_scale: float = 3.0
+    warp_threshold: float | None = 3.0
+    retry_gate: float | None = 3.0
+
+
+DEFAULT_POLISH = PolishConfig()
 
 
 @dataclass(frozen=True)
@@ -45,8 +71,8 @@ class TrackerConfig:
     top_up: bool = field(
         default=True,
         metadata={
-            "help": "from a frame where MagicPoint S finds fewer than 40 points (corner-poor walls such as grass) "
-            "until it finds 80 again, add S-HA's detections (--detector S only)"
+            "help": f"from a frame where MagicPoint S finds fewer than {TOP_UP_MIN_POINTS} points (corner-poor walls "
+            f"such as grass) until it finds {TOP_UP_ENOUGH_POINTS} again, add S-HA's detections (--detector S only)"
         },
     )
     warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
@@ -60,8 +86,8 @@ class TrackerConfig:
     carry: bool | None = field(
         default=None,
         metadata={
-            "help": "report a track the detector misses for up to 20 frames, carried by MagicWarp's homography "
-            "and aligned to the frame it was last detected in (default: with --method auto or homography)"
+            "help": f"report a track the detector misses for up to {CARRY_FRAMES} frames, carried by MagicWarp's "
+            "homography and aligned to the frame it was last detected in (default: with --method auto or homography)"
         },
     )
     ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
@@ -69,9 +95,10 @@ class TrackerConfig:
         default=True,
         metadata={
             "help": "confirm and polish the pairs each pose is measured from (a frame and its keyframe) by "
-            "Lucas-Kanade on contrast-normalised images, dropping those it moves 1.5 px or more (after a second "
-            "try from where the confirmed pairs' homography puts them) or that do not align back to their "
-            "keyframe point (magic front-end; --no-polish: correspondences from MagicPoint and MagicWarp alone)"
+            f"Lucas-Kanade on contrast-normalised images, dropping those it moves {DEFAULT_POLISH.max_move:g} px or "
+            "more (after a second try from where the confirmed pairs' homography puts them) or that do not align "
+            "back to their keyframe point (magic front-end; --no-polish: correspondences from MagicPoint and "
+            "MagicWarp alone)"
         },
     )
     polish_warp: bool = field(

@@ -15,38 +15,13 @@ detection frame after frame drifts off its point, while its keyframe patch is st
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
+from deepslam.frontend.config import DEFAULT_POLISH, PolishConfig
 from deepslam.geometry import fit_homography, in_image, warp_points
 
 LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
-
-
-@dataclass(frozen=True)
-class PolishConfig:
-    """``sigma``: scale (px) of the local mean and deviation ``normalise_contrast`` removes; ``window``:
-    Lucas-Kanade window side (px); ``max_move``: a pair whose point moves this far (px) is dropped;
-    ``max_return``, ``return_scale``: so is a pair whose polished point, aligned back into the keyframe,
-    lands farther from its partner than ``max_return`` px and ``return_scale`` times the pairs' median (image
-    noise spreads every pair's return; ``max_return`` None: no backward check); ``warp_threshold``: inlier
-    threshold (px) of the homography fitted to the pairs (MAGSAC) that warps the keyframe before aligning, or
-    None to align the keyframe as it is; ``retry_gate``: a pair not confirmed from its tracked position is
-    aligned again from where the confirmed pairs' homography puts it, if that lies within this many pixels of
-    the tracked position (None: no second try; nor is there one without the warp, ``warp_threshold`` None)."""
-
-    sigma: float = 3.0
-    window: int = 15
-    max_move: float = 1.5
-    max_return: float | None = 0.25
-    return_scale: float = 3.0
-    warp_threshold: float | None = 3.0
-    retry_gate: float | None = 3.0
-
-
-DEFAULT_POLISH = PolishConfig()
 
 
 def normalise_contrast(image: np.ndarray, sigma: float = PolishConfig.sigma) -> np.ndarray:

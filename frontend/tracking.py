@@ -23,11 +23,21 @@ import cv2
 import numpy as np
 
 from deepslam.errors import InputError
-from deepslam.frontend.config import DETECTOR_PRESETS, FRONTENDS, POINT_BUDGET, TrackerConfig
+from deepslam.frontend.config import (
+    CARRY_FRAMES,
+    DEFAULT_POLISH,
+    DETECTOR_PRESETS,
+    FRONTENDS,
+    POINT_BUDGET,
+    TOP_UP_ENOUGH_POINTS,
+    TOP_UP_MIN_POINTS,
+    PolishConfig,
+    TrackerConfig,
+)
 from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.magicwarp import MIN_POINTS, MagicWarp, match, refine
 from deepslam.frontend.nets import resolve_device
-from deepslam.frontend.polish import DEFAULT_POLISH, PolishConfig, normalise_contrast, polish
+from deepslam.frontend.polish import normalise_contrast, polish
 from deepslam.geometry import in_image, warp_points
 
 
@@ -117,7 +127,7 @@ class MagicTracker(Tracker):
         max_dist: float = 3.0,
         iterations: int = 1,
         ransac: bool = False,
-        max_age: int = 20,
+        max_age: int = CARRY_FRAMES,
         refine: bool = True,
         carry: bool = True,
         budget: int = POINT_BUDGET,
@@ -312,8 +322,8 @@ class ToppedUpDetector:
 
     primary: MagicPoint
     secondary: MagicPoint
-    min_points: int = 40
-    enough_points: int = 80
+    min_points: int = TOP_UP_MIN_POINTS
+    enough_points: int = TOP_UP_ENOUGH_POINTS
     radius: float = 4.0
     top_k: int = POINT_BUDGET
     topping_up: bool = field(default=False, init=False)  # the last frame was topped up

@@ -8,11 +8,11 @@ import torch
 from deepslam.frontend import MagicPoint, MagicWarp, match
 from deepslam.frontend.cells import points_to_cells
 from deepslam.frontend.classical import ClassicalDetector
-from deepslam.frontend.config import MagicWarpConfig
+from deepslam.frontend.config import MagicWarpConfig, PolishConfig
 from deepslam.frontend.magicpoint import VARIANTS, MagicPointConfig, MagicPointNet
 from deepslam.frontend.magicwarp import MagicWarpNet, normalizer
 from deepslam.frontend.nets import BlurMaxPool, OneDnnConv2d, fold_batchnorm
-from deepslam.frontend.polish import PolishConfig, normalise_contrast, polish
+from deepslam.frontend.polish import normalise_contrast, polish
 from deepslam.frontend.training.magicwarp import warp_loss
 from deepslam.sim import shapes
 

@@ -9,6 +9,7 @@ from typing import ClassVar
 import numpy as np
 
 from deepslam.backend import drift
+from deepslam.backend.evaluation.config import DriftConfig
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.results import Result
@@ -33,7 +34,7 @@ def lost_frames(path: str | Path) -> int | None:
     return sum(flags) if flags else None
 
 
-def analyse(paths: list[str | Path], delta: int = 1) -> DriftComparison:
+def analyse(paths: list[str | Path], delta: int = DriftConfig.delta) -> DriftComparison:
     """Drift figures per log, with its front-end and scale method from the log's metadata and its lost
     frames (-1 where the log does not say)."""
     results = {}
@@ -56,7 +57,7 @@ class DriftComparison(Result):
     frames), front-end, scale and lost frames; its plots read the logs again."""
 
     logs: dict[str, dict]
-    delta: int = 1
+    delta: int = DriftConfig.delta
     name: ClassVar[str] = "drift"
 
     def to_dict(self) -> dict:
@@ -85,7 +86,7 @@ def table_lines(results: dict[str, dict]) -> list[str]:
     return rows
 
 
-def save_plots(paths: list[str | Path], out_dir: Path, delta: int = 1) -> list[Path]:
+def save_plots(paths: list[str | Path], out_dir: Path, delta: int = DriftConfig.delta) -> list[Path]:
     """PNG plots: the ground truth and estimates seen along the axis with the least motion (a top view for
     a camera moving on the ground; a front view for one circling in a vertical plane), translation error
     over time, RPE distribution."""

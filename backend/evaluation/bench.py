@@ -10,6 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from deepslam.backend.config import OdometryConfig
+from deepslam.backend.evaluation.config import PipelineBenchConfig
 from deepslam.backend.evaluation.runs import simulated_frames
 from deepslam.backend.evaluation.truth import run_pipeline
 from deepslam.backend.pipeline import PipelineConfig
@@ -32,7 +33,10 @@ def resident_mb() -> float:
 
 
 def bench_pipeline(
-    frames: int = 60, seed: int = 0, tracker_config: TrackerConfig = TrackerConfig(), rounds: int = 5
+    frames: int = PipelineBenchConfig.frames,
+    seed: int = 0,
+    tracker_config: TrackerConfig = TrackerConfig(),
+    rounds: int = PipelineBenchConfig.rounds,
 ) -> PipelineTimings:
     """Per-frame milliseconds of each stage (rendering not counted) of the front-end ``tracker_config``
     describes: the odometry's stages, and inside a magic front-end MagicPoint, MagicWarp, matching and

@@ -1,4 +1,5 @@
-"""What a drift sweep covers (``deepslam eval pipeline``): a plain dataclass that imports no solver."""
+"""What a drift sweep covers (``deepslam eval pipeline``), what ``bench pipeline`` times and how ``drift``
+measures: plain dataclasses that import no solver; the functions take their defaults from them."""
 
 from __future__ import annotations
 
@@ -57,3 +58,25 @@ class SweepConfig:
             for light in self.lighting
             for frontend in self.frontends
         ]
+
+
+@dataclass(frozen=True)
+class PipelineBenchConfig:
+    """What ``deepslam bench pipeline`` times."""
+
+    frames: int = field(default=60, metadata={"help": "frames of the simulated run, timed once a round", "min": 2})
+    rounds: int = field(
+        default=5,
+        metadata={
+            "help": "times the run is timed, each with a fresh front-end; every stage reports the median of its "
+            "per-round means (other work on the machine slows single rounds)",
+            "min": 1,
+        },
+    )
+
+
+@dataclass(frozen=True)
+class DriftConfig:
+    """How ``deepslam drift`` measures."""
+
+    delta: int = field(default=1, metadata={"help": "frame delta of the RPE", "min": 1})

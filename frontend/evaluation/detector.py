@@ -9,6 +9,7 @@ from typing import ClassVar, Protocol
 import cv2
 import numpy as np
 
+from deepslam.frontend.evaluation.config import DetectorEvalConfig, RealImagesConfig
 from deepslam.frontend.evaluation.metrics import average_precision, localization_error, match_detections, merge
 from deepslam.parallel import Workers, parallel_map
 from deepslam.progress import progress_bar
@@ -106,7 +107,11 @@ def _detector_figures(piece: tuple) -> dict:
 
 
 def report(
-    detectors: dict[str, Detector], per_category: int, sweep_per_category: int, seed: int, workers: Workers = Workers()
+    detectors: dict[str, Detector],
+    per_category: int = DetectorEvalConfig.per_category,
+    sweep_per_category: int = DetectorEvalConfig.sweep_per_category,
+    seed: int = DetectorEvalConfig.seed,
+    workers: Workers = Workers(),
 ) -> DetectorTable:
     """Everything ``deepslam eval detector`` shows: table, per category, noise sweep, noise types; the
     detectors run in parallel as ``workers`` says."""
@@ -276,10 +281,10 @@ def _condition_figures(piece: tuple) -> dict:
 
 def static_repeatability(
     detectors: dict[str, Detector],
-    frames: int = 20,
-    seed: int = 0,
+    frames: int = RealImagesConfig.frames,
+    seed: int = RealImagesConfig.seed,
     sizes: tuple[tuple[int, int], ...] = ((120, 160), (240, 320)),
-    jitter_px: float = 0.0,
+    jitter_px: float = RealImagesConfig.jitter,
     workers: Workers = Workers(),
 ) -> Repeatability:
     """Frame-to-frame repeatability@N (eps=2) on real photographs seen by a static camera under

@@ -10,6 +10,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from deepslam.frontend.evaluation.config import WarpEvalConfig
 from deepslam.frontend.magicwarp import MagicWarp, MagicWarpNet, refine
 from deepslam.geometry import warp_points
 from deepslam.parallel import Workers, parallel_map
@@ -139,7 +140,11 @@ def _cell_repeatability(piece: tuple) -> dict[str, np.ndarray]:
 
 
 def breakdown_table(
-    warp: MagicWarp | None, runs: int = 50, seed: int = 0, progress: bool = True, workers: Workers = Workers()
+    warp: MagicWarp | None,
+    runs: int = WarpEvalConfig.runs,
+    seed: int = WarpEvalConfig.seed,
+    progress: bool = True,
+    workers: Workers = Workers(),
 ) -> WarpBreakdown:
     """The paper's 90% breakdown table for NN, RANSAC, MagicWarp, MagicWarp x2, MagicWarp refined by
     snapping and a robust fit (``frontend.magicwarp.refine``), and MagicWarp given image B without its
