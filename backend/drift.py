@@ -35,7 +35,22 @@ def align(estimate: np.ndarray, truth: np.ndarray, with_scale: bool) -> np.ndarr
 
 
 def ate_rmse(estimate: np.ndarray, truth: np.ndarray, with_scale: bool = False) -> float:
-    """Absolute trajectory error: RMSE of positions after SE(3) (or Sim(3)) alignment."""
+    """Absolute trajectory error: RMSE of positions after SE(3) (or Sim(3)) alignment.
+
+    Args:
+        estimate, truth: (N, 4, 4) ``T_world_cam`` of the same frames.
+        with_scale: align with a similarity (Sim(3)), for trajectories up to scale.
+
+    Returns:
+        The RMSE in the units of ``truth`` (m).
+
+    Example:
+        >>> import numpy as np
+        >>> truth = np.stack([np.eye(4)] * 3); truth[:, 0, 3] = [0.0, 1.0, 2.0]
+        >>> estimate = truth.copy(); estimate[:, :3, 3] *= 2  # twice as long
+        >>> round(ate_rmse(estimate, truth), 3), round(ate_rmse(estimate, truth, with_scale=True), 3)
+        (0.816, 0.0)
+    """
     aligned = align(estimate, truth, with_scale)
     return float(np.sqrt(np.mean(np.sum((aligned[:, :3, 3] - truth[:, :3, 3]) ** 2, 1))))
 
@@ -52,8 +67,17 @@ def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.nda
 
 
 def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str, float]:
-    """All drift figures: ATE RMSE (SE3, Sim3), RPE means (translation, rotation in degrees) and the
-    final position error as % of the ground-truth path length (no alignment: both start together)."""
+    """All drift figures of an estimated trajectory against the truth.
+
+    Args:
+        estimate, truth: (N, 4, 4) ``T_world_cam`` of the same frames, N >= 2.
+        delta: frames apart of the relative pose errors.
+
+    Returns:
+        {"ate_se3", "ate_sim3": ATE RMSE (m) after SE(3) and Sim(3) alignment; "rpe_trans", "rpe_rot_deg": RPE
+        means (m, degrees); "final_drift_pct": the final position error as % of the true path length (no
+        alignment: both start together); "path_length" (m); "frames"}.
+    """
     if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
         raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
     if len(estimate) < 2:

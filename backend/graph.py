@@ -43,7 +43,21 @@ def measurement_sigmas(
 
 
 class PoseGraph:
-    """Incremental pose graph: ``add_pose`` per frame, ``add_between`` per measurement, ``update``."""
+    """Incremental pose graph (gtsam's ISAM2): ``add_pose`` per frame, ``add_between`` per measurement,
+    ``update``; old poses are marginalised after ``config.window`` frames.
+
+    Args:
+        first_pose: ``T_world_cam`` (4, 4) of frame 0, held by a tight prior.
+        config: noise, robust loss and window (``GraphConfig``).
+
+    Example:
+        >>> import numpy as np
+        >>> graph = PoseGraph(np.eye(4))
+        >>> step = np.eye(4); step[0, 3] = 1.0  # 1 m along x
+        >>> graph.add_pose(1, step); graph.add_between(0, 1, step, np.array([0.01] * 3 + [0.1] * 3))
+        >>> graph.update(); np.round(graph.pose(1)[:3, 3], 3).tolist()
+        [1.0, 0.0, 0.0]
+    """
 
     def __init__(self, first_pose: np.ndarray, config: GraphConfig = GraphConfig()):
         if config.window is not None and config.window < 1:

@@ -128,16 +128,13 @@ def homography_pose(
         if H is None:
             return _failed(len(p1), "homography estimation failed")
         inliers = mask.ravel().astype(bool)
-    elif inliers is None:
-        inliers = np.ones(len(p1), bool)
+    inliers = np.ones(len(p1), bool) if inliers is None else inliers
     solutions = _finite_decompositions(H, K)
     if not solutions:  # OpenCV's closed form divides by zero on some exact homographies (noise-free matches)
         return _failed(len(p1), "the homography's decomposition is not finite")
     rotations, translations, normals = solutions
     visible = _visible_shares(rotations, normals, _normalised(p1[inliers], K), _normalised(p2[inliers], K))
-    candidates = [i for i in range(len(rotations)) if visible[i] >= VISIBLE_SHARE] or list(range(len(rotations)))
-    # OpenCV's normal satisfies n . X_1 = d > 0 on the plane: a plane in front of camera 1 has n_z > 0
-    candidates = [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
+    candidates = _in_front(visible, normals)
     rotation_only = max(np.linalg.norm(translations[i]) for i in candidates) < 1e-3
     if not rotation_only:
         candidates = _fitting_off_plane(candidates, rotations, translations, p1[~inliers], p2[~inliers], K)
@@ -157,6 +154,14 @@ def homography_pose(
         normals[best].ravel(),
         float(np.linalg.norm(translations[best])),
     )
+
+
+def _in_front(visible: list[float], normals: list) -> list[int]:
+    """The decompositions with ``VISIBLE_SHARE`` of the inliers in front of both cameras (``visible``), then of
+    those the ones whose plane faces camera 1 (OpenCV's normal satisfies n . X_1 = d > 0 on the plane, so a
+    plane in front of camera 1 has n_z > 0); where none passes a test, all that were left before it."""
+    candidates = [i for i in range(len(visible)) if visible[i] >= VISIBLE_SHARE] or list(range(len(visible)))
+    return [i for i in candidates if normals[i].ravel()[2] > 0] or candidates
 
 
 def _finite_decompositions(H: np.ndarray, K: np.ndarray) -> tuple[list, list, list] | None:
@@ -352,13 +357,36 @@ def estimate(
     sigma: float = 1.0,
     previous_normal: np.ndarray | None = None,
 ) -> RelativePose:
-    """Relative pose of camera 2 in camera 1 from matched pixels p1, p2 (N, 2); ``previous_t`` and
-    ``previous_normal`` (camera 1) choose between a homography's decompositions (``homography_pose``).
+    """Relative pose of camera 2 in camera 1 from matched pixels.
 
     Degenerate cases never raise, they give model "failed" with a ``reason``: a singular K, non-finite
     points, fewer than ``MIN_MATCHES`` distinct matches, collinear points (``MIN_SPREAD_PX``), or a model
     that explains less than ``MIN_INLIER_RATIO`` of the matches. A median flow below ``STATIC_FLOW_PX``
     gives "static" (identity); pure rotation is flagged ``rotation_only`` (no translation).
+
+    Args:
+        p1, p2: (N, 2) pixels of the same points in cameras 1 and 2.
+        K: (3, 3) camera matrix of both images.
+        method: "auto" (ORB-SLAM's scores choose a homography or an essential matrix), "homography",
+            "essential" or "pycolmap".
+        size: (H, W) of the images.
+        previous_t, previous_normal: the motion and the plane's normal (3,) measured before, in camera 1;
+            they choose between a homography's decompositions (``homography_pose``).
+        sigma: the pixel noise the model scores assume.
+
+    Returns:
+        ``RelativePose``: ``T_c1_c2`` (4, 4) with a unit (or zero) translation, the model, the inliers (N,).
+
+    Example:
+        >>> import numpy as np
+        >>> K = np.array([[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]])
+        >>> X = np.random.default_rng(0).uniform([-1, -1, 3], [1, 1, 6], (60, 3))  # points at 3-6 m
+        >>> p1 = X[:, :2] / X[:, 2:] * 100 + [80, 60]
+        >>> X2 = X - [0.2, 0, 0]  # camera 2 is 0.2 m to the right
+        >>> p2 = X2[:, :2] / X2[:, 2:] * 100 + [80, 60]
+        >>> pose = estimate(p1, p2, K, "essential")
+        >>> pose.model, bool(np.allclose(pose.T_c1_c2[:3, 3], [1, 0, 0], atol=0.01))
+        ('essential', True)
     """
     if method not in METHODS:
         raise InputError(f"unknown relative pose method {method!r}; expected one of {', '.join(METHODS)}")

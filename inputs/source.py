@@ -81,8 +81,18 @@ def pipeline_size(size: tuple[int, int] | None, native: tuple[int, int]) -> tupl
 
 
 def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> Source:
-    """The input at ``path`` as a checked ``Source``: a deepslam log, a ROS 2 bag (.mcap file or rosbag2
-    folder), a TUM RGB-D folder or an EuRoC/ASL folder, told apart by what they contain."""
+    """Recorded camera data, checked before any work starts.
+
+    Args:
+        path: a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM RGB-D folder or an EuRoC/ASL
+            folder, told apart by what they contain.
+        options: topics, a calibration file, the size the pipeline runs at (``SourceOptions``).
+
+    Returns:
+        A ``Source``: ``len()``, ``kind``, ``calibration``, ``frames_with_truth`` and ``frames()``, an iterator
+        of ``SourceFrame`` (stamp_ns, uint8 (H, W) image undistorted and resized, its K, true pose or None).
+        ``SourceError`` (one line naming the file and what is wrong) for an input it cannot run on.
+    """
     from deepslam.inputs.bags import RosBag
     from deepslam.inputs.deepslam_log import DeepslamLog
     from deepslam.inputs.folders import EurocFolder, TumFolder

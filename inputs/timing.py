@@ -24,8 +24,20 @@ def check_order(stamps: list[int], what: str) -> None:
 
 
 def associate(stamps: list[int], truth_stamps: list[int], max_gap_ns: int = MAX_TIME_GAP_NS) -> dict[int, int]:
-    """TUM's association: pairs (image i, truth j) closest in time first, each used once, within
-    ``max_gap_ns``; returns {i: j}."""
+    """TUM's association of ground truth to images: pairs closest in time first, each used once.
+
+    Args:
+        stamps: image stamps (ns).
+        truth_stamps: ground-truth stamps (ns).
+        max_gap_ns: pairs further apart are not associated.
+
+    Returns:
+        {image index: truth index}.
+
+    Example:
+        >>> associate([0, 100_000_000], [5_000_000, 90_000_000, 300_000_000])
+        {0: 0, 1: 1}
+    """
     if not stamps or not truth_stamps:
         return {}
     truth = np.asarray(truth_stamps, np.int64)

@@ -244,8 +244,16 @@ class _Decoders:
 
 
 def read_frames(path: str | Path) -> Iterator[LogFrame]:
-    """Whole frames of a log in time order; what a damaged or cut-off file lost is named in one warning
-    at the end. A file without the frame topics (not a deepslam log) is a ``LogError``."""
+    """The frames of a log written by ``deepslam run`` or ``replay``.
+
+    Args:
+        path: the MCAP file (a finished log, its ``.partial``, or a damaged one).
+
+    Returns:
+        An iterator of whole ``LogFrame``s in time order (image, K, true and estimated pose, covariance,
+        tracks, correspondences, diagnostics); what a damaged or cut-off file lost is named in one warning at
+        the end. A file without the frame topics (not a deepslam log) is a ``LogError``.
+    """
     path = Path(path)
     damage, decoders, count = Damage(), _Decoders(), 0
     for messages in frame_messages(path, damage):

@@ -86,7 +86,17 @@ def check_output(path: str | Path, inputs: tuple[str | Path, ...] = ()) -> None:
 
 
 class LogWriter:
-    """``with LogWriter(path, metadata) as log: log.write(frame)`` for each ``LogFrame``."""
+    """A run's MCAP log of ROS 2 messages, written frame by frame.
+
+    ``with LogWriter(path, metadata) as log: log.write(frame)`` for each ``LogFrame``: the file grows as
+    ``path.partial`` (locked against a second writer) and becomes ``path`` when the block ends normally or by
+    Ctrl-C / SIGTERM; a failed run leaves ``path`` as it was.
+
+    Args:
+        path: the log to write (not a folder, not an input of the run).
+        metadata: the run's settings, stored as JSON in the "deepslam" metadata record.
+        chunk_size: bytes of messages per zstd-compressed chunk.
+    """
 
     def __init__(self, path: str | Path, metadata: dict, chunk_size: int = 256 * 1024):
         check_output(path)

@@ -90,7 +90,14 @@ class SimFrame:
 
 
 class Scenario:
-    """Holds the world and trajectory of a config; iterate it for ``SimFrame``s."""
+    """A simulated run: the world and camera path of ``config``; iterate it for ``SimFrame``s (image, K,
+    stamp, true pose, visible landmarks, depth), rendered as they are drawn.
+
+    Example:
+        >>> frames = list(Scenario(ScenarioConfig(world="plane", frames=3)))
+        >>> len(frames), frames[0].image.shape, frames[0].image.dtype.name
+        (3, (120, 160), 'uint8')
+    """
 
     def __init__(self, config: ScenarioConfig = ScenarioConfig()):
         self.config = config

@@ -26,7 +26,8 @@ MODULES = _modules_with_examples()
 
 
 def test_the_public_api_has_examples():
-    assert {"deepslam.backend.pipeline", "deepslam.frontend.magicpoint", "deepslam.frontend.magicwarp"} <= set(MODULES)
+    public = ("backend.pipeline", "backend.relpose", "backend.drift", "frontend.magicpoint", "frontend.magicwarp")
+    assert {f"deepslam.{name}" for name in (*public, "inputs.timing")} <= set(MODULES)
 
 
 @pytest.mark.parametrize("name", MODULES)
