@@ -8,21 +8,19 @@ from pathlib import Path
 from mcap.records import Metadata
 from mcap.writer import CompressionType, Writer
 
-from deepslam.logs.reader import Damage, frame_messages, raw_records
-from deepslam.logs.writer import check_output, partial_path
+from deepslam.files import written
+from deepslam.logs.reader import Damage, LogError, frame_messages, raw_records
 
 
 def recover(log: str | Path, out: str | Path) -> tuple[int, Damage]:
     """Write the whole frames of ``log`` (and its metadata) to ``out``; returns (frames written, what
-    was lost). ``out`` is written as ``out.partial`` and renamed when done; never over ``log``."""
+    was lost). ``out`` is written as ``out.partial`` and renamed when done; never over ``log``, and never
+    as an empty log: with no whole frame to recover it is a ``LogError`` and ``out`` keeps what it held."""
     log, out = Path(log), Path(out)
-    check_output(out, inputs=(log,))
-    out.parent.mkdir(parents=True, exist_ok=True)
     damage, frames = Damage(), 0
     schemas: dict[int, int] = {}  # schema id in the log -> in the output
     channels: dict[int, int] = {}
-    partial = partial_path(out)
-    with open(partial, "wb") as stream:
+    with written(out, inputs=(log,)) as partial, open(partial, "wb") as stream:
         writer = Writer(stream, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="deepslam recover")
         for item in raw_records(log, Damage()):
@@ -45,6 +43,7 @@ def recover(log: str | Path, out: str | Path) -> tuple[int, Damage]:
                     channels[raw.channel.id], message.log_time, message.data, message.publish_time, message.sequence
                 )
             frames += 1
+        if not frames:
+            raise LogError(f"{log}: no whole frame to recover ({damage.report(log, 0)}); {out} left as it was")
         writer.finish()
-    partial.replace(out)
     return frames, damage

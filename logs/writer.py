@@ -20,6 +20,7 @@ from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer as Ros2Writer
 
 from deepslam.errors import InputError
+from deepslam.files import OutputError, check_output, partial_path
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.interrupts import held_signals
 from deepslam.logs.frames import LogFrame
@@ -57,32 +58,29 @@ def ros_covariance(covariance: np.ndarray, T: np.ndarray) -> list[float]:
     return (rotate @ np.asarray(covariance)[np.ix_(order, order)] @ rotate.T).ravel().tolist()
 
 
-class LogWriteError(InputError):
-    """An output path that cannot take a log."""
+LogWriteError = OutputError  # the name this module gave it
 
 
-def partial_path(path: str | Path) -> Path:
-    """Where a log bound for ``path`` is written while the run goes on."""
-    path = Path(path)
-    return path.with_name(path.name + ".partial")
-
-
-def check_output(path: str | Path, inputs: tuple[str | Path, ...] = ()) -> None:
-    """Raise ``LogWriteError`` unless a log can be written to ``path``: not a folder, its folder
-    writable (or creatable), and neither ``path`` nor its ``.partial`` the same file as any of
-    ``inputs`` under any name (hard links and symlinks included)."""
-    path = Path(path)
-    if path.is_dir():
-        raise LogWriteError(f"{path} is a folder; give a file name for the log")
-    for target in (path, partial_path(path)):
-        for source in inputs:
-            if target.exists() and Path(source).exists() and target.samefile(source):
-                raise LogWriteError(f"writing {target} would overwrite the input {source}; choose another --out")
-    folder = path.parent
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
-        raise LogWriteError(f"cannot write a log under {folder}: not a writable folder")
+def _open_locked(partial: Path, path: Path, tries: int = 3) -> int:
+    """A descriptor of ``partial``, created if missing, under an exclusive lock, and still the file that
+    bears that name once locked: a run that finished between our open and our lock renamed the file we
+    opened to its log, which must not be truncated (then we open the name again)."""
+    for _ in range(tries):
+        descriptor = os.open(partial, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(descriptor)
+            raise LogWriteError(f"{path} is being written by another run ({partial} is locked)") from None
+        try:
+            named = os.stat(partial)
+        except FileNotFoundError:
+            named = None
+        opened = os.fstat(descriptor)
+        if named is not None and (named.st_dev, named.st_ino) == (opened.st_dev, opened.st_ino):
+            return descriptor
+        os.close(descriptor)  # renamed away (a run that just finished): its file is not ours to truncate
+    raise LogWriteError(f"{path} keeps being written by other runs; try again")
 
 
 class LogWriter:
@@ -103,12 +101,7 @@ class LogWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.partial = partial_path(self.path)
-        descriptor = os.open(self.partial, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(descriptor)
-            raise LogWriteError(f"{self.path} is being written by another run ({self.partial} is locked)") from None
+        descriptor = _open_locked(self.partial, self.path)
         os.ftruncate(descriptor, 0)
         self._file = os.fdopen(descriptor, "wb")
         self._writer = Ros2Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)

@@ -403,3 +403,44 @@ def test_the_foxglove_layout_shows_topics_the_logs_have():
 
 def _panels(node) -> list[str]:
     return [node] if isinstance(node, str) else _panels(node["first"]) + _panels(node["second"])
+
+
+def test_no_command_writes_over_its_input_or_replaces_a_file_with_nothing(oracle_log, tmp_path):
+    path, _ = oracle_log
+    log = tmp_path / "run.mcap"
+    log.write_bytes(path.read_bytes())
+    alias = tmp_path / "alias.mcap"
+    os.link(log, alias)
+    before = log.read_bytes()
+    for out in (log, alias):  # the report onto its input, under its own name or a hard link
+        assert main(["report", str(log), "--out", str(out)]) == 1
+        assert log.read_bytes() == before
+    keep = tmp_path / "keep.mcap"
+    keep.write_bytes(b"keep me")
+    foreign = tmp_path / "foreign.mcap"
+    foreign.write_bytes(b"\x89MCAP0\r\n" + bytes(200))  # an MCAP header and nothing whole after it
+    assert main(["recover", str(foreign), "--out", str(keep)]) == 1  # zero frames: an error, keep untouched
+    assert keep.read_bytes() == b"keep me" and not partial_path(keep).exists()
+    report = tmp_path / "report.html"
+    assert main(["report", str(log), "--out", str(report)]) == 0 and "<html>" in report.read_text()
+    assert not partial_path(report).exists()
+
+
+def test_a_log_that_finished_between_another_writers_open_and_lock_is_not_truncated(tmp_path, monkeypatch):
+    import fcntl
+
+    out = tmp_path / "run.mcap"
+    first = LogWriter(out, {"run": 1})
+    real_flock, renamed = fcntl.flock, []
+
+    def flock_after_the_first_run_finished(descriptor, operation):
+        if not renamed:  # the first run finishes (renames its partial, releases its lock) before our lock
+            renamed.append(True)
+            first.close()
+        return real_flock(descriptor, operation)
+
+    monkeypatch.setattr(fcntl, "flock", flock_after_the_first_run_finished)
+    second = LogWriter(out, {"run": 2})
+    monkeypatch.setattr(fcntl, "flock", real_flock)
+    second.close(complete=False)
+    assert read_metadata(out)["run"] == 1  # the finished log is whole

@@ -1,6 +1,7 @@
 """Smoke runs of a few iterations: the training loops run, checkpoint and resume."""
 
 import json
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -39,8 +40,16 @@ def test_magicpoint_training_runs_and_resumes(tmp_path):
     with pytest.raises(ValueError, match="not a deepslam weights file or checkpoint"):
         export_weights(tmp_path / "junk.pt", tmp_path / "x.pt")
     size = (tmp_path / "last.pt").stat().st_size
-    with pytest.raises(ValueError, match="onto itself"):
+    with pytest.raises(ValueError, match="would overwrite the input"):
         export_weights(tmp_path / "last.pt", tmp_path / "." / "last.pt")
+    assert (tmp_path / "last.pt").stat().st_size == size
+    (tmp_path / "ck").mkdir()
+    os.link(tmp_path / "last.pt", tmp_path / "ck" / "x.pt.tmp")  # a source named like a temporary file
+    export_weights(tmp_path / "ck" / "x.pt.tmp", tmp_path / "ck" / "x.pt")
+    assert (tmp_path / "ck" / "x.pt.tmp").stat().st_size == size  # not consumed
+    os.link(tmp_path / "last.pt", tmp_path / "ck" / "y.pt.partial")
+    with pytest.raises(ValueError, match="would overwrite the input"):
+        export_weights(tmp_path / "ck" / "y.pt.partial", tmp_path / "ck" / "y.pt")
     assert (tmp_path / "last.pt").stat().st_size == size
 
 

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from deepslam.backend import drift
+from deepslam.files import written
 from deepslam.logs.frames import LogFrame
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 
@@ -192,8 +193,9 @@ img{max-width:100%;display:block;margin:.5em 0}.note{color:#a33}.runs{display:fl
 
 
 def write_report(paths: list[Path], out: Path) -> list[str]:
-    """Write the HTML report of the logs ``paths`` to ``out``; returns one line per log that could not be
-    read at all (the page says so too). LogError if none could."""
+    """Write the HTML report of the logs ``paths`` to ``out`` (never over one of them; by way of
+    ``out.partial``); returns one line per log that could not be read at all (the page says so too).
+    LogError if none could."""
     runs, unreadable = [], []
     for path in paths:
         try:
@@ -217,6 +219,6 @@ def write_report(paths: list[Path], out: Path) -> list[str]:
         + "".join(sections)
         + "</body></html>"
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(page)
+    with written(out, inputs=tuple(paths)) as partial:
+        partial.write_text(page)
     return unreadable

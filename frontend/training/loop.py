@@ -26,6 +26,7 @@ import torch.distributed as dist
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from deepslam.errors import InputError
+from deepslam.files import written
 from deepslam.frontend.nets import load_checkpoint, network_config, resolve_device
 from deepslam.frontend.training.surgery import config_of, load_weights
 from deepslam.progress import progress_bar
@@ -103,24 +104,20 @@ def save_checkpoint(
         "train_config": asdict(config),
         **extra,
     }
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)
+    with written(path) as partial:
+        torch.save(state, partial)
 
 
 def export_weights(checkpoint: Path, out: Path) -> dict:
     """Write the inference part of a training checkpoint (model, configs, step; no optimiser or
-    generator state) to ``out``, the form shipped in ``frontend/weights``; returns what was kept."""
-    if Path(out).exists() and Path(out).samefile(checkpoint):
-        raise InputError(f"exporting {checkpoint} onto itself would destroy the checkpoint; choose another OUT")
+    generator state) to ``out``, the form shipped in ``frontend/weights``, by way of ``out.partial`` and
+    never over the checkpoint (under any name); returns what was kept."""
     state = load_checkpoint(checkpoint, needs=("model", "config", "step"))
     kept = {key: state[key] for key in ("model", "config", "step", "train_config") if key in state}
     if "ema" in state:
         kept["model"] = state["ema"]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    torch.save(kept, tmp)
-    tmp.replace(out)
+    with written(out, inputs=(checkpoint,)) as partial:
+        torch.save(kept, partial)
     return kept
 
 
