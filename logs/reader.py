@@ -1,17 +1,20 @@
 """Reading runs back from MCAP as typed ``LogFrame``s, checking every chunk on the way.
 
-Chunks are read one at a time: a chunk whose CRC does not match, that does not decompress, or that
-declares more than ``MAX_CHUNK_BYTES`` uncompressed is skipped, and a file that ends inside a chunk (a
+Chunks are read one at a time: a chunk whose CRC does not match, that does not decompress, that
+declares more than ``MAX_CHUNK_BYTES`` uncompressed or decompresses to another size than it declares
+(decompression stops one byte past it) is skipped; reading stops where the chunks declare more than
+``MAX_TOTAL_BYTES`` in all; and a file that ends inside a chunk (a
 run that was killed) is read up to there. Frames touched by a lost part are dropped whole: a frame is
 never returned with parts silently missing. What was lost is named, with where it was, in one warning.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterator
 
@@ -31,6 +34,7 @@ from deepslam.logs.schemas import FRAME_TOPICS
 
 MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 64 * 2**20  # a chunk declaring more than this uncompressed is refused (the writer's are 256 KiB)
+MAX_TOTAL_BYTES = 16 * 2**30  # a file whose chunks declare more than this in all is read up to there
 MAX_RECORD_BYTES = 256 * 2**20  # a record declaring more than this ends the readable part of the file
 FIRST_TOPIC = FRAME_TOPICS[0]  # the writer starts every frame with its image
 
@@ -84,7 +88,7 @@ def raw_records(path: str | Path, damage: Damage) -> Iterator[RawMessage | Metad
     path = Path(path)
     check_log(path)
     schemas, channels = _summary_definitions(path)
-    chunks, orphans = 0, 0
+    chunks, orphans, declared = 0, 0, 0
     with open(path, "rb") as f:  # definitions in the data section (CRC-checked) replace the summary's
         records = StreamReader(f, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES).records
         while True:
@@ -103,6 +107,14 @@ def raw_records(path: str | Path, damage: Damage) -> Iterator[RawMessage | Metad
             inner: list = [record]
             if isinstance(record, Chunk):
                 chunks += 1
+                declared += record.uncompressed_size
+                if declared > MAX_TOTAL_BYTES:
+                    damage.complete = False
+                    damage.problems.append(
+                        f"stopped at chunk {chunks}: the chunks declare over {MAX_TOTAL_BYTES / 2**30:.0f} GiB in all"
+                    )
+                    yield None
+                    return
                 inner = _open_chunk(record, chunks, damage)
                 if inner is None:
                     yield None
@@ -144,10 +156,42 @@ def _open_chunk(chunk: Chunk, index: int, damage: Damage) -> list | None:
         )
         return None
     try:
-        return breakup_chunk(chunk, validate_crc=True)
+        data = _decompressed(chunk)
+        if len(data) != chunk.uncompressed_size:
+            damage.problems.append(
+                f"{_chunk_where(index, chunk)} declares {chunk.uncompressed_size} bytes but holds "
+                f"{'more' if len(data) > chunk.uncompressed_size else len(data)}: skipped"
+            )
+            return None
+        return breakup_chunk(replace(chunk, compression="", data=data), validate_crc=True)
     except (McapError, zstandard.ZstdError, struct.error, ValueError, RuntimeError, EOFError) as error:
         damage.problems.append(f"{_chunk_where(index, chunk)} is corrupt ({type(error).__name__}): skipped")
         return None
+
+
+def _decompressed(chunk: Chunk) -> bytes:
+    """A chunk's records, decompressed as a stream that stops one byte past what the chunk declares (a
+    frame header may promise gigabytes; the decompressor would allocate them), so that a chunk that lies
+    about its size costs at most its declared size (``MAX_CHUNK_BYTES``) in memory and time."""
+    limit = chunk.uncompressed_size + 1
+    if chunk.compression == "":
+        return chunk.data[:limit]
+    if chunk.compression == "zstd":
+        reader = zstandard.ZstdDecompressor(max_window_size=MAX_CHUNK_BYTES).stream_reader(chunk.data)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        reader = lz4.frame.LZ4FrameFile(io.BytesIO(chunk.data))
+    else:
+        raise ValueError(f"unknown compression {chunk.compression!r}")
+    parts, size = [], 0
+    while size < limit:
+        part = reader.read(limit - size)
+        if not part:
+            break
+        parts.append(part)
+        size += len(part)
+    return b"".join(parts)
 
 
 def frame_messages(path: str | Path, damage: Damage) -> Iterator[list[RawMessage]]:

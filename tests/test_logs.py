@@ -444,3 +444,41 @@ def test_a_log_that_finished_between_another_writers_open_and_lock_is_not_trunca
     monkeypatch.setattr(fcntl, "flock", real_flock)
     second.close(complete=False)
     assert read_metadata(out)["run"] == 1  # the finished log is whole
+
+
+def _with_bomb_chunk(data: bytes) -> bytes:
+    """The log with its second chunk's records (the first defines the channels) replaced by a 64 KB zstd
+    frame of 2 GiB of zeros, the chunk still declaring 1,000 bytes uncompressed."""
+    import struct
+
+    import zstandard
+
+    compressor = zstandard.ZstdCompressor(level=1).compressobj(size=2 * 2**30)  # the header promises 2 GiB
+    bomb = b"".join([compressor.compress(bytes(2**24)) for _ in range(128)] + [compressor.flush()])
+    position, chunks = MAGIC_BYTES, 0
+    while chunks < 2:  # to the second chunk record
+        chunks += data[position] == 0x06
+        if chunks < 2:
+            position += 9 + struct.unpack_from("<Q", data, position + 1)[0]
+    start, end = struct.unpack_from("<QQ", data, position + 9)
+    body = struct.pack("<QQQI", start, end, 1000, 0) + struct.pack("<I", 4) + b"zstd"
+    body += struct.pack("<Q", len(bomb)) + bomb
+    after = position + 9 + struct.unpack_from("<Q", data, position + 1)[0]
+    return data[:position] + b"\x06" + struct.pack("<Q", len(body)) + body + data[after:]
+
+
+def test_a_chunk_that_lies_about_its_size_is_skipped_fast_with_bounded_memory(oracle_log, tmp_path):
+    path, _ = oracle_log
+    bomb = tmp_path / "bomb.mcap"
+    bomb.write_bytes(_with_bomb_chunk(path.read_bytes()))
+    code = (
+        "import resource, sys, time, warnings\nfrom deepslam.logs.reader import read_frames\n"
+        "warnings.simplefilter('always')\nstarted = time.time()\n"
+        "with warnings.catch_warnings(record=True) as caught:\n    frames = len(list(read_frames(sys.argv[1])))\n"
+        "print(frames, time.time() - started, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3)\n"
+        "print(caught[-1].message if caught else '')"
+    )
+    runs = [subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True) for p in (path, bomb)]
+    (clean, _, clean_mb), (frames, seconds, bomb_mb) = ([float(v) for v in r.stdout.split()[:3]] for r in runs)
+    assert 0 < frames < clean and seconds < 5 and bomb_mb - clean_mb < 300, runs[1].stdout
+    assert "chunk 2" in runs[1].stdout and "declares 1000 bytes but holds more" in runs[1].stdout
