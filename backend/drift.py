@@ -82,6 +82,8 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
         raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
     if len(estimate) < 2:
         raise InputError("drift needs at least 2 poses")
+    if not 1 <= delta < len(estimate):
+        raise InputError(f"the RPE's delta must lie in [1, {len(estimate) - 1}] for {len(estimate)} poses, got {delta}")
     rpe_t, rpe_r = rpe(estimate, truth, delta)
     length = path_length(truth)
     final = np.linalg.norm(estimate[-1, :3, 3] - truth[-1, :3, 3])

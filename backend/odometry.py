@@ -31,6 +31,7 @@ from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Tracker, Tracks
 from deepslam.geometry import rotation_angle, vector_angle
+from deepslam.interrupts import checkpoint
 
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
 
@@ -188,9 +189,11 @@ class Odometry:
             no_pairs = np.zeros((0, 2), np.int64)
             timings = {"frontend": 1e3 * (tracked - started)}
             return FrameResult(0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True)
+        checkpoint()  # Ctrl-C and SIGTERM take effect between the stages of a frame
         kf = self._reference(k, tracks)
         rel, T, pairs, measured_points = self._measure(kf, k)
         measured = time.perf_counter()
+        checkpoint()
         T = self._add_measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
         self._update_keyframes(k, kf, rel, T, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}

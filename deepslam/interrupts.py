@@ -1,7 +1,9 @@
 """Ctrl-C (SIGINT) and SIGTERM held off while work must not stop half way: a frame half processed, a
 log record half written. A held signal reaches the handler it would have met at a ``checkpoint`` or
 when the block ends; with Python's defaults that raises ``KeyboardInterrupt`` there, in plain Python
-code, never inside a call into OpenCV, gtsam or the MCAP writer."""
+code, never inside a call into OpenCV, gtsam or the MCAP writer. Long work inside a frame calls the
+module's ``checkpoint()`` between its steps (MagicWarp's iterations, the odometry's stages), so that a
+signal takes effect within one step, not at the end of the frame."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 HELD = (signal.SIGINT, signal.SIGTERM)
+_ACTIVE: list[HeldSignals] = []  # the blocks in force, innermost last
 
 
 @dataclass
@@ -49,8 +52,17 @@ def held_signals() -> Iterator[HeldSignals]:
         yield held
         return
     held.previous = {number: signal.signal(number, lambda n, _: held.received.append(n)) for number in HELD}
+    _ACTIVE.append(held)
     try:
         yield held
     finally:
+        _ACTIVE.remove(held)
         held._restore()
         held.checkpoint()
+
+
+def checkpoint() -> None:
+    """Deliver a signal the innermost ``held_signals`` block received (nothing outside one): for work that
+    may stop between its steps."""
+    if _ACTIVE:
+        _ACTIVE[-1].checkpoint()

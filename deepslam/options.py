@@ -111,7 +111,8 @@ def add_options(parser: argparse.ArgumentParser, config: type, exclude: tuple[st
         kwargs = _argument(hints[field.name], meta)
         kwargs.update({key: meta[key] for key in ("metavar", "choices") if key in meta})
         default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
-        group.add_argument(flag, dest=field.name, default=default, help=meta["help"], **kwargs)
+        text = meta["help"] + (f" (at most {meta['max']:g})" if "max" in meta else "")
+        group.add_argument(flag, dest=field.name, default=default, help=text, **kwargs)
 
 
 def from_args(config: type, args: argparse.Namespace, **overrides: Any):

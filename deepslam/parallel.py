@@ -25,7 +25,9 @@ class Workers:
     """Where the pieces run: ``jobs`` local processes (1: in this process), or a Ray cluster at
     ``ray_address`` ("local" starts one on this machine, bound to 127.0.0.1)."""
 
-    jobs: int = field(default=1, metadata={"help": "local worker processes (one torch thread each)", "min": 1})
+    jobs: int = field(
+        default=1, metadata={"help": "local worker processes (one torch thread each)", "min": 1, "max": 256}
+    )
     ray_address: str | None = None  # the CLI's --ray [ADDRESS]
 
     def __post_init__(self):
@@ -62,7 +64,8 @@ def parallel_map(
             results.append(_run(fn, item, describe))
         return results
     results: list = [None] * len(items)
-    with ProcessPoolExecutor(max_workers=workers.jobs, initializer=_init_worker) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers.jobs, initializer=_init_worker)
+    try:
         futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
         bar = progress_bar(total=len(items), desc=progress, unit="piece", disable=progress is None)
         for future in as_completed(futures):
@@ -70,12 +73,26 @@ def parallel_map(
             try:
                 results[index] = future.result()
             except Exception as error:  # noqa: BLE001 - re-raised with the piece named
-                for other in futures:
-                    other.cancel()
                 raise PieceFailed(f"{describe(items[index])} failed: {type(error).__name__}: {error}") from error
             bar.update(1)
         bar.close()
+    except BaseException:  # a failed piece, Ctrl-C or SIGTERM: the workers stop now, not after their pieces
+        _stop(pool)
+        raise
+    pool.shutdown()
     return results
+
+
+def _stop(pool: ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+    """Cancel what has not started and end the worker processes (SIGTERM, then SIGKILL after ``timeout_s``)."""
+    processes = list(getattr(pool, "_processes", {}).values())  # the executor offers no public handle on them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout_s)
+        if process.is_alive():
+            process.kill()
 
 
 def _run(fn, item, describe):

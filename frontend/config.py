@@ -75,7 +75,9 @@ class TrackerConfig:
             f"such as grass) until it finds {TOP_UP_ENOUGH_POINTS} again, add S-HA's detections (--detector S only)"
         },
     )
-    warp_iterations: int = field(default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1})
+    warp_iterations: int = field(
+        default=1, metadata={"help": "MagicWarp iterations (magic front-end)", "min": 1, "max": 10}
+    )
     refine: bool = field(
         default=True,
         metadata={
@@ -110,7 +112,11 @@ class TrackerConfig:
     )
     oracle_noise: float = field(
         default=0.5,
-        metadata={"help": "standard deviation (px) of the Gaussian noise on the oracle's true projections", "min": 0},
+        metadata={
+            "help": "standard deviation (px) of the Gaussian noise on the oracle's true projections",
+            "min": 0,
+            "max": 100,
+        },
     )
     device: Literal["auto", "cpu", "cuda"] = field(
         default="cpu", metadata={"help": "where the magic front-end's networks run: cpu, cuda, or auto"}

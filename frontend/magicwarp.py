@@ -15,6 +15,7 @@ from deepslam.frontend.cells import CELL, points_to_cells_batch
 from deepslam.frontend.config import MagicWarpConfig
 from deepslam.frontend.nets import fold_batchnorm, load_network, vgg_block
 from deepslam.geometry import fit_homography, in_image, warp_points
+from deepslam.interrupts import checkpoint
 
 WEIGHTS = Path(__file__).parent / "weights"
 MIN_POINTS = 4  # a homography needs four points; fewer in either image and MagicWarp declines
@@ -134,6 +135,7 @@ class MagicWarp:
             )
         H = np.eye(3)
         for _ in range(iterations):
+            checkpoint()  # Ctrl-C and SIGTERM take effect between iterations
             H = self.estimate_batch([(warp_points(points_a, H), points_b)], image_size)[0] @ H
             H /= H[2, 2]
         return H

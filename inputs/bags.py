@@ -13,6 +13,7 @@ from deepslam.inputs.calibration import Calibration, Rectifier
 from deepslam.inputs.images import RAW_ENCODINGS, to_gray
 from deepslam.inputs.source import SourceError, SourceFrame, SourceOptions, pipeline_size
 from deepslam.inputs.timing import associate, check_order
+from deepslam.logs.images import MAX_PIXELS, encoded_size, too_large
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TransformStamped", "nav_msgs/msg/Odometry")
@@ -76,6 +77,10 @@ class RosBag:
 
     def _image(self, connection, message) -> np.ndarray:
         if connection.msgtype.endswith("CompressedImage"):
+            size = encoded_size(bytes(message.data[:65536]))
+            if too_large(size):
+                raise SourceError(f"{self.path}: a {size[0]}x{size[1]} image on {connection.topic} is over the "
+                                  f"{MAX_PIXELS} pixels an input may hold")  # fmt: skip
             image = cv2.imdecode(np.frombuffer(bytes(message.data), np.uint8), cv2.IMREAD_UNCHANGED)
             if image is None:
                 raise SourceError(f"{self.path}: a {message.format!r} image on {connection.topic} does not decode")
@@ -86,6 +91,9 @@ class RosBag:
             raise SourceError(f"{self.path}: {connection.topic} has the unsupported encoding {message.encoding!r} "
                               f"(supported: {', '.join(RAW_ENCODINGS)})")  # fmt: skip
         channels, dtype = RAW_ENCODINGS[message.encoding]
+        if too_large((message.height, message.width)) or len(message.data) != message.height * message.step:
+            raise SourceError(f"{self.path}: a {message.height}x{message.width} image on {connection.topic} with "
+                              f"{len(message.data)} bytes is too large or not as its header says")  # fmt: skip
         data = np.frombuffer(bytes(message.data), np.uint8).reshape(message.height, message.step)
         pixels = data[:, : message.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
         if message.is_bigendian and dtype == np.uint16:

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from deepslam.inputs.source import SourceError
+from deepslam.logs.images import MAX_PIXELS, encoded_size, too_large
 
 RAW_ENCODINGS = {"mono8": (1, np.uint8), "mono16": (1, np.uint16), "rgb8": (3, np.uint8), "bgr8": (3, np.uint8),
                  "rgba8": (4, np.uint8), "bgra8": (4, np.uint8)}  # fmt: skip
@@ -26,6 +27,13 @@ def to_gray(image: np.ndarray, encoding: str) -> np.ndarray:
 
 def read_image(path: Path) -> np.ndarray:
     """An image file as uint8 (H, W) or (H, W, 3) BGR (16 bits scaled by 1/256); ``SourceError`` if unreadable."""
+    try:
+        with open(path, "rb") as f:
+            size = encoded_size(f.read(65536))
+    except OSError as error:
+        raise SourceError(f"{path}: cannot read the image ({error.strerror})") from None
+    if too_large(size):
+        raise SourceError(f"{path}: a {size[0]}x{size[1]} image is over the {MAX_PIXELS} pixels an input may hold")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise SourceError(f"{path}: cannot read the image")

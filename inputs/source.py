@@ -14,6 +14,7 @@ from deepslam.errors import InputError
 if TYPE_CHECKING:
     from deepslam.inputs.calibration import Calibration
 
+MAX_SIDE = 2048  # the largest image side (px) the pipeline runs at
 DEFAULT_SIZE = (120, 160)  # external images are resized to this (H, W) unless told otherwise
 
 
@@ -48,6 +49,7 @@ class SourceOptions:
             "other inputs)",
             "metavar": ("H", "W"),
             "min": 8,
+            "max": MAX_SIDE,
         },
     )
 

@@ -30,6 +30,7 @@ from mcap_ros2.decoder import DecoderFactory
 from deepslam.errors import InputError
 from deepslam.geometry import pose_matrix
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
+from deepslam.logs.images import MAX_PIXELS, encoded_size, too_large
 from deepslam.logs.schemas import FRAME_TOPICS
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -234,6 +235,8 @@ def _pose(message) -> np.ndarray:
 def _apply(frame: dict, topic: str, message) -> None:
     """Store one decoded message into the frame being assembled."""
     if topic == "/camera/image":
+        if too_large(encoded_size(bytes(message.data[:65536]))):
+            raise InputError(f"the image is over {MAX_PIXELS} pixels")
         frame["image"] = cv2.imdecode(np.frombuffer(bytes(message.data), np.uint8), cv2.IMREAD_GRAYSCALE)
         if frame["image"] is None:
             raise InputError("the image does not decode")

@@ -16,6 +16,8 @@ from deepslam.sim.shapes import check_size
 from deepslam.sim.world import WorldName
 
 START_TIME_S = 1_704_067_200.0  # 2024-01-01 00:00:00 UTC: simulated runs start there, not at 1970
+MAX_FRAMES = 100_000  # the longest run (about 2 GB of log at 120x160)
+MAX_SIDE = 2048  # the largest image side (px) the pipeline runs at
 
 
 @dataclass(frozen=True)
@@ -24,13 +26,14 @@ class ScenarioConfig:
 
     world: WorldName = field(default="plane", metadata={"help": "simulated world: one textured wall, or a room"})
     trajectory: trajectories.Kind = field(default="circle", metadata={"help": "camera path"})
-    frames: int = field(default=60, metadata={"help": "number of frames", "min": 2})
+    frames: int = field(default=60, metadata={"help": "number of frames", "min": 2, "max": MAX_FRAMES})
     size: tuple[int, int] = field(
-        default=(120, 160), metadata={"help": "image size, multiples of 8", "metavar": ("H", "W"), "min": 8}
+        default=(120, 160),
+        metadata={"help": "image size, multiples of 8", "metavar": ("H", "W"), "min": 8, "max": MAX_SIDE},
     )
     fov_deg: float = 70.0
-    speed: float = field(default=0.5, metadata={"help": "camera speed (m/s)", "min": 0})
-    fps: float = field(default=10.0, metadata={"help": "frame rate (frames per second)", "min": 1e-3})
+    speed: float = field(default=0.5, metadata={"help": "camera speed (m/s)", "min": 0, "max": 10})
+    fps: float = field(default=10.0, metadata={"help": "frame rate (frames per second)", "min": 1e-3, "max": 1000})
     noise: float = field(
         default=0.0, metadata={"help": "photometric noise magnitude s (0 clean, 1 full, 2 random)", "min": 0, "max": 2}
     )
@@ -52,6 +55,7 @@ class ScenarioConfig:
             "help": "seed of the world, the image noise and the random trajectory (circle, figure8 and line are "
             "fixed paths)",
             "min": 0,
+            "max": 2**32 - 1,
         },
     )
 

@@ -214,3 +214,43 @@ def test_help_and_version_start_without_torch():
         )
         result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert result.stdout.strip().splitlines()[-1] == "False False", (argv, result.stderr)
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["run", "--size", "100000", "100000"], "--size"),
+        (["run", "--frames", "99999999999999999999"], "--frames"),
+        (["run", "--speed", "1e12"], "--speed"),
+        (["run", "--warp-iterations", "100000"], "--warp-iterations"),
+        (["drift", "x.mcap", "--delta", "1000000"], "--delta"),
+        (["eval", "pipeline", "--seeds", "100000"], "--seeds"),
+    ],
+)
+def test_an_option_past_its_documented_maximum_is_a_usage_error(argv, option, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2 and f"argument {option}: must lie in" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*argv[: 2 if argv[0] == "eval" else 1], "--help"])
+    assert "(at most " in capsys.readouterr().out  # the maximum is documented
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_parallel_sweep_and_its_workers_within_seconds(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    marker = tmp_path / "sweep_marker"
+    argv = ["eval", "pipeline", "--worlds", "plane", "--trajectories", "circle", "--frontends", "magic",
+            "--noise", "0", "--lighting", "0", "--seeds", "4", "--jobs", "2", "-q", "--out", str(marker)]  # fmt: skip
+    process = subprocess.Popen([sys.executable, "-m", "deepslam", *argv], stderr=subprocess.PIPE, text=True)
+    time.sleep(8)  # the workers are inside their first runs
+    process.send_signal(signal.SIGTERM)
+    started = time.time()
+    assert process.wait(timeout=30) == 143 and time.time() - started < 5
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-f", str(marker)], capture_output=True, text=True).stdout
+    assert not left.strip(), left

@@ -464,3 +464,20 @@ def test_extraction_settings_have_one_source_with_named_presets():
     assert changed.subpixel == "parabola" and changed.top_k == 7 and changed.threshold == 0.001
     with pytest.raises(ValueError, match="grid_shifts"):
         ExtractionConfig(grid_shifts=3)
+
+
+def test_ctrl_c_takes_effect_between_magicwarp_iterations_inside_a_held_block():
+    import os
+    import signal
+    import threading
+    import time
+
+    from deepslam.interrupts import held_signals
+
+    warp = MagicWarp.pretrained()
+    points = np.random.default_rng(0).uniform([10, 10], [150, 110], (60, 2))
+    threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    started = time.time()
+    with pytest.raises(KeyboardInterrupt), held_signals():
+        warp.estimate(points, points, iterations=1_000_000)  # about 20 minutes of work unless interrupted
+    assert time.time() - started < 5

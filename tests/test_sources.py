@@ -208,3 +208,21 @@ def test_bad_recorded_inputs_get_one_line_errors_before_any_work(recorded, tmp_p
         open_source(euroc)
     assert main(["replay", str(euroc), "--out", str(tmp_path / "x.mcap")]) == 1
     assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "x.mcap.partial").exists()
+
+
+def test_an_image_too_large_to_hold_is_refused_from_its_header_before_decoding(recorded, tmp_path):
+    import struct
+    import time
+
+    folder, frames, _ = recorded
+    tum = tmp_path / "tum"
+    _write_tum(tum, frames[:3])
+    first = next(iter(sorted((tum / "rgb").iterdir())))
+    png = bytearray(first.read_bytes())
+    png[16:24] = struct.pack(">II", 20000, 20000)  # the header says 20000x20000 (a few KB on disk)
+    first.write_bytes(bytes(png))
+    _write_calibration(tmp_path / "c.yaml", frames[0].K, frames[0].image.shape)
+    started = time.time()
+    with pytest.raises(SourceError, match="20000x20000 image is over the"):
+        open_source(tum, SourceOptions(calibration=str(tmp_path / "c.yaml")))
+    assert time.time() - started < 5

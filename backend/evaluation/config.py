@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from deepslam.backend.config import Method, OdometryConfig, Scale
 from deepslam.frontend.config import Frontend
 from deepslam.sim import trajectories
+from deepslam.sim.scenario import MAX_FRAMES
 from deepslam.sim.world import WorldName
 
 
@@ -32,10 +33,14 @@ class SweepConfig:
     lighting: tuple[float, ...] = field(
         default=(0.0, 0.3), metadata={"help": "amplitudes of a slow global brightness change", "min": 0, "max": 1}
     )
-    frames: int = field(default=60, metadata={"help": "frames per run", "min": 2})
+    frames: int = field(default=60, metadata={"help": "frames per run", "min": 2, "max": MAX_FRAMES})
     seeds: int = field(
         default=12,
-        metadata={"help": "runs per cell, seeds 0..N-1 (each seed its own world: textures, layout)", "min": 1},
+        metadata={
+            "help": "runs per cell, seeds 0..N-1 (each seed its own world: textures, layout)",
+            "min": 1,
+            "max": 1000,
+        },
     )
     scale: Scale = field(
         default="gt",
@@ -64,13 +69,16 @@ class SweepConfig:
 class PipelineBenchConfig:
     """What ``deepslam bench pipeline`` times."""
 
-    frames: int = field(default=60, metadata={"help": "frames of the simulated run, timed once a round", "min": 2})
+    frames: int = field(
+        default=60, metadata={"help": "frames of the simulated run, timed once a round", "min": 2, "max": MAX_FRAMES}
+    )
     rounds: int = field(
         default=5,
         metadata={
             "help": "times the run is timed, each with a fresh front-end; every stage reports the median of its "
             "per-round means (other work on the machine slows single rounds)",
             "min": 1,
+            "max": 100,
         },
     )
 
@@ -79,4 +87,4 @@ class PipelineBenchConfig:
 class DriftConfig:
     """How ``deepslam drift`` measures."""
 
-    delta: int = field(default=1, metadata={"help": "frame delta of the RPE", "min": 1})
+    delta: int = field(default=1, metadata={"help": "frame delta of the RPE", "min": 1, "max": MAX_FRAMES})
