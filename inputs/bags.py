@@ -8,7 +8,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from deepslam.geometry import pose_matrix
+from deepslam.inputs import parsing
 from deepslam.inputs.calibration import Calibration, Rectifier
 from deepslam.inputs.images import RAW_ENCODINGS, to_gray
 from deepslam.inputs.source import SourceError, SourceFrame, SourceOptions, pipeline_size
@@ -134,7 +134,7 @@ class RosBag:
         stamps, poses = [], []
         for _, log_time, message in self._messages(self.truth_topic):
             stamps.append(self._stamp(message, log_time))
-            poses.append(_pose_of(message))
+            poses.append(_pose_of(message, f"{self.path} {self.truth_topic} at {stamps[-1]} ns"))
         return {i: poses[j] for i, j in associate(self.stamps, stamps).items()}
 
     def __len__(self) -> int:
@@ -150,11 +150,11 @@ class RosBag:
             yield SourceFrame(self.stamps[index], image, self.rectify.K, self.truth.get(index))
 
 
-def _pose_of(message) -> np.ndarray:
-    """T_world_cam of a PoseStamped, TransformStamped or Odometry message."""
+def _pose_of(message, where: str) -> np.ndarray:
+    """T_world_cam of a PoseStamped, TransformStamped or Odometry message (finite, a unit quaternion)."""
     if hasattr(message, "transform"):
         t, q = message.transform.translation, message.transform.rotation
     else:
         pose = message.pose.pose if hasattr(message.pose, "pose") else message.pose
         t, q = pose.position, pose.orientation
-    return pose_matrix(np.array([t.x, t.y, t.z]), np.array([q.x, q.y, q.z, q.w]))
+    return parsing.pose([t.x, t.y, t.z], [q.x, q.y, q.z, q.w], where)

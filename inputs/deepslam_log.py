@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Iterator
 
 from deepslam.inputs.calibration import Calibration, Rectifier
-from deepslam.inputs.source import SourceFrame, SourceOptions
+from deepslam.inputs.source import SourceError, SourceFrame, SourceOptions
 
 
 class DeepslamLog:
@@ -17,6 +17,8 @@ class DeepslamLog:
     def __init__(self, path: Path, options: SourceOptions):
         from deepslam.logs.reader import read_frames
 
+        if options.calibration is not None:
+            raise SourceError(f"{path}: --calibration does not apply to a deepslam log (its frames carry their K)")
         self.path, self.read = path, read_frames
         self.count = self.frames_with_truth = 0
         for frame in read_frames(path):  # one pass: the camera from the first frame, how many have truth

@@ -6,17 +6,12 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-import yaml
 
-from deepslam.geometry import pose_matrix
+from deepslam.inputs import parsing
 from deepslam.inputs.calibration import Calibration, Rectifier
 from deepslam.inputs.images import image_sizes, read_image, to_gray
 from deepslam.inputs.source import SourceError, SourceFrame, SourceOptions, pipeline_size
-from deepslam.inputs.timing import associate, check_order, seconds_to_ns
-
-
-def _read_lines(path: Path) -> list[list[str]]:
-    return [line.split() for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
+from deepslam.inputs.timing import associate, check_order
 
 
 class _ImageFolder:
@@ -50,24 +45,35 @@ class TumFolder(_ImageFolder):
 
     def __init__(self, root: Path, options: SourceOptions):
         self.root = root
-        rows = _read_lines(root / "rgb.txt")
+        listing = root / "rgb.txt"
+        rows = parsing.rows(listing, ("timestamp", "filename"))
         if not rows:
-            raise SourceError(f"{root / 'rgb.txt'}: no images listed")
-        self.stamps = [seconds_to_ns(r[0]) for r in rows]
-        self.files = [root / r[1] for r in rows]
-        check_order(self.stamps, str(root / "rgb.txt"))
-        self.truth: dict[int, np.ndarray] = {}
-        if (root / "groundtruth.txt").exists():
-            truth = [(seconds_to_ns(r[0]), [float(v) for v in r[1:8]]) for r in _read_lines(root / "groundtruth.txt")]
-            pairs = associate(self.stamps, [t for t, _ in truth])
-            self.truth = {
-                i: pose_matrix(np.array(truth[j][1][:3]), np.array(truth[j][1][3:])) for i, j in pairs.items()
-            }
+            raise SourceError(f"{listing}: no images listed")
+        self.stamps = [parsing.seconds_ns(r[0], f"{listing} line {n}, timestamp") for n, r in rows]
+        self.files = [parsing.inside(root, r[1], f"{listing} line {n}, filename") for n, r in rows]
+        check_order(self.stamps, str(listing))
+        self.truth = _associated(self.stamps, _tum_truth(root / "groundtruth.txt"))
         native = image_sizes(self.files)
         if options.calibration is None:
             raise SourceError(f"{root}: a TUM folder carries no calibration; give --calibration FILE")
         self.calibration = Calibration.from_yaml(options.calibration, native)
         self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
+
+
+def _tum_truth(path: Path) -> tuple[list[int], list[np.ndarray]]:
+    """The stamps (ns) and poses of a TUM groundtruth.txt (timestamp tx ty tz qx qy qz qw), none if absent."""
+    if not path.exists():
+        return [], []
+    fields = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
+    rows = parsing.rows(path, fields)
+    stamps = [parsing.seconds_ns(r[0], f"{path} line {n}, timestamp") for n, r in rows]
+    return stamps, [parsing.pose(r[1:4], r[4:8], f"{path} line {n}") for n, r in rows]
+
+
+def _associated(stamps: list[int], truth: tuple[list[int], list[np.ndarray]]) -> dict[int, np.ndarray]:
+    """{frame index: true pose} by TUM's association of the truth's stamps to the images' ``stamps``."""
+    truth_stamps, poses = truth
+    return {i: poses[j] for i, j in associate(stamps, truth_stamps).items()}
 
 
 class EurocFolder(_ImageFolder):
@@ -80,45 +86,58 @@ class EurocFolder(_ImageFolder):
     def __init__(self, root: Path, options: SourceOptions):
         base = root / "mav0" if (root / "mav0" / "cam0").is_dir() else root
         camera = base / "cam0"
-        rows = [r.split(",") for r in (camera / "data.csv").read_text().splitlines() if r and not r.startswith("#")]
-        self.stamps = [int(r[0]) for r in rows]
-        self.files = [camera / "data" / r[1].strip() for r in rows]
-        if not self.files:
-            raise SourceError(f"{camera / 'data.csv'}: no images listed")
-        check_order(self.stamps, str(camera / "data.csv"))
+        listing = camera / "data.csv"
+        rows = parsing.rows(listing, ("timestamp", "filename"), separator=",")
+        if not rows:
+            raise SourceError(f"{listing}: no images listed")
+        self.stamps = [parsing.nanoseconds(r[0], f"{listing} line {n}, timestamp") for n, r in rows]
+        self.files = [parsing.inside(camera / "data", r[1], f"{listing} line {n}, filename") for n, r in rows]
+        check_order(self.stamps, str(listing))
         native = image_sizes(self.files)
         sensor = _read_euroc_yaml(camera / "sensor.yaml")
-        T_BS = np.asarray(sensor.get("T_BS", {}).get("data", np.eye(4).ravel()), np.float64).reshape(4, 4)
         if options.calibration is not None:
             self.calibration = Calibration.from_yaml(options.calibration, native)
         else:
-            try:
-                fu, fv, cu, cv = (float(v) for v in sensor["intrinsics"])
-            except (KeyError, TypeError, ValueError):
-                raise SourceError(f"{camera / 'sensor.yaml'}: intrinsics must be four numbers fu, fv, cu, cv") from None
+            fu, fv, cu, cv = parsing.yaml_numbers(sensor, "intrinsics", camera / "sensor.yaml", count=4)
             K = np.array([[fu, 0, cu], [0, fv, cv], [0, 0, 1]], np.float64)
-            self.calibration = Calibration.checked(
-                K, sensor.get("distortion_coefficients", []), str(sensor.get("distortion_model", "none")), native,
-                camera / "sensor.yaml",
-            )  # fmt: skip
-        self.truth = self._truth(base / "state_groundtruth_estimate0" / "data.csv", T_BS)
+            distortion = parsing.yaml_numbers(sensor, "distortion_coefficients", camera / "sensor.yaml")
+            model = sensor.get("distortion_model", "none")
+            self.calibration = Calibration.checked(K, distortion, str(model), native, camera / "sensor.yaml")
+        T_BS = _body_to_sensor(sensor, camera / "sensor.yaml")
+        truth = _euroc_truth(base / "state_groundtruth_estimate0" / "data.csv")
+        self.truth = {i: T @ T_BS for i, T in _associated(self.stamps, truth).items()}
         self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
 
-    def _truth(self, path: Path, T_BS: np.ndarray) -> dict[int, np.ndarray]:
-        if not path.exists():
-            return {}
-        rows = [[float(v) for v in r.split(",")[:8]] for r in path.read_text().splitlines() if r and r[0] != "#"]
-        stamps = [int(r.split(",")[0]) for r in path.read_text().splitlines() if r and r[0] != "#"]
-        pairs = associate(self.stamps, stamps)
-        # EuRoC: p_RS_R x y z, then q_RS w x y z
-        poses = {j: pose_matrix(np.array(rows[j][1:4]), np.array([*rows[j][5:8], rows[j][4]])) for j in pairs.values()}
-        return {i: poses[j] @ T_BS for i, j in pairs.items()}
+
+def _euroc_truth(path: Path) -> tuple[list[int], list[np.ndarray]]:
+    """The stamps (ns) and body poses of EuRoC's state_groundtruth_estimate0/data.csv (timestamp, p_RS_R x y
+    z, q_RS w x y z, ...), none if absent."""
+    if not path.exists():
+        return [], []
+    fields = ("timestamp", "p_x", "p_y", "p_z", "q_w", "q_x", "q_y", "q_z")
+    rows = parsing.rows(path, fields, separator=",")
+    stamps = [parsing.nanoseconds(r[0], f"{path} line {n}, timestamp") for n, r in rows]
+    return stamps, [parsing.pose(r[1:4], [*r[5:8], r[4]], f"{path} line {n}") for n, r in rows]
+
+
+def _body_to_sensor(sensor: dict, where: Path) -> np.ndarray:
+    """EuRoC's T_BS (4, 4): the camera in the body frame (the identity if absent), a rigid transform."""
+    if "T_BS" not in sensor:
+        return np.eye(4)
+    entry = sensor["T_BS"]
+    if not isinstance(entry, dict):
+        raise SourceError(f"{where}: T_BS must be a mapping with rows, cols and data, got {entry!r}")
+    T = np.array(parsing.yaml_numbers(entry, "data", where, count=16)).reshape(4, 4)
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise SourceError(f"{where}: T_BS is not a rigid transform")
+    return T
 
 
 def _read_euroc_yaml(path: Path) -> dict:
     """EuRoC's sensor.yaml (a "%YAML:1.0" header that PyYAML does not take)."""
-    text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("%YAML"))
     try:
-        return yaml.safe_load(text) or {}
-    except yaml.YAMLError as error:
+        text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("%YAML"))
+    except (OSError, UnicodeDecodeError) as error:
         raise SourceError(f"{path}: cannot read it ({error})") from None
+    return parsing.yaml_mapping(path, text)

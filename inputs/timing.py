@@ -1,5 +1,4 @@
-"""Time on inputs: exact nanoseconds from decimal seconds, order checks and TUM's association of
-ground truth to images."""
+"""Time on inputs: order checks and TUM's association of ground truth to images."""
 
 from __future__ import annotations
 
@@ -8,12 +7,6 @@ import numpy as np
 from deepslam.inputs.source import SourceError
 
 MAX_TIME_GAP_NS = 20_000_000  # ground truth further than this from an image is not associated (TUM's 0.02 s)
-
-
-def seconds_to_ns(text: str) -> int:
-    """Integer nanoseconds of decimal seconds such as "1305031102.175304" (no float rounding)."""
-    whole, _, fraction = text.partition(".")
-    return int(whole) * 1_000_000_000 + int((fraction + "000000000")[:9])  # exact: no float rounding
 
 
 def check_order(stamps: list[int], what: str) -> None:

@@ -226,3 +226,70 @@ def test_an_image_too_large_to_hold_is_refused_from_its_header_before_decoding(r
     with pytest.raises(SourceError, match="20000x20000 image is over the"):
         open_source(tum, SourceOptions(calibration=str(tmp_path / "c.yaml")))
     assert time.time() - started < 5
+
+
+def _mend(path, old: str, new: str) -> None:
+    path.write_text(path.read_text().replace(old, new, 1))
+
+
+def _last_line(path, new: str) -> None:
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:-1] + [new]) + "\n")
+
+
+GT, CAM, STATE = "groundtruth.txt", "mav0/cam0", "mav0/state_groundtruth_estimate0/data.csv"
+ZEROS = "distortion: [0, 0, 0, 0, 0]"
+
+
+def _field(name: str, value: str):
+    """A damage that gives the calibration file's ``name`` field another ``value``."""
+    return lambda c: c.write_text(c.read_text().replace(f"{name}: ", f"{name}: {value} #", 1))
+
+
+@pytest.mark.parametrize(
+    "kind, damage, message",
+    [
+        ("tum", lambda d: _last_line(d / "rgb.txt", "1704067200.5"), r"rgb.txt line 4: no filename"),
+        ("tum", lambda d: _last_line(d / GT, "1704067200.5 1 2 3"), r"groundtruth.txt line 3: no qx"),
+        ("tum", lambda d: _mend(d / "rgb.txt", "rgb/", "../"), r"rgb.txt line 2, filename: '\.\./.*' lies outside"),
+        ("tum", lambda d: _mend(d / "rgb.txt", "rgb/", "/etc/"), r"rgb.txt line 2, filename: '/etc/.*' lies outside"),
+        ("tum", lambda d: _mend(d / "rgb.txt", "17040", "-17040"), r"line 2, timestamp: '-17040.*' is not a time"),
+        ("tum", lambda d: _last_line(d / GT, "1704067200.5 1 2 3 0 0 0 0"), r"line 3: the quaternion .* is not a unit"),
+        ("tum", lambda d: _last_line(d / GT, "1704067200.5 nan 2 3 0 0 0 1"), r"line 3, position: 'nan' is not finite"),
+        ("euroc", lambda d: _last_line(d / CAM / "data.csv", "1704067200500000000,"), r"data.csv line 4: no filename"),
+        ("euroc", lambda d: _last_line(d / STATE, "1,2,3,4"), r"data.csv line 4: no q_w"),
+        ("euroc", lambda d: _mend(d / CAM / "sensor.yaml", "T_BS:\n", "T_BS: 5\nx:\n"), r"T_BS must be a mapping"),
+        ("euroc", lambda d: (d / CAM / "sensor.yaml").write_text("- 1\n- 2\n"), r"expected a mapping"),
+        ("calibration", lambda c: _mend(c, ZEROS, "distortion: 5"), r"distortion must be a list"),
+        ("calibration", lambda c: _mend(c, ZEROS, "distortion: [1e6, 0, 0, 0, 0]"), r"distortion coefficients over"),
+        ("calibration", _field("width", "0"), r"width and height must both be positive"),
+        ("calibration", lambda c: [_field("width", "-160")(c), _field("height", "-120")(c)], r"must both be positive"),
+        ("calibration", _field("width", "320"), r"declares 120x320 images, the input's are 120x160"),
+        ("calibration", _field("fx", "true"), r"fx must be a finite number"),
+        ("calibration", _field("fx", "1e300"), r"focal lengths .* are not plausible"),
+        ("calibration", _field("fx", "1e-300"), r"focal lengths .* are not plausible"),
+    ],
+)
+def test_every_field_of_a_dataset_is_checked_with_a_line_naming_file_line_and_field(
+    recorded, tmp_path, kind, damage, message
+):
+    _, frames, _ = recorded
+    calibration = tmp_path / "c.yaml"
+    _write_calibration(calibration, frames[0].K, frames[0].image.shape)
+    folder = tmp_path / "data"
+    if kind == "euroc":
+        _write_euroc(folder, frames[:3])
+    else:
+        _write_tum(folder, frames[:3])
+    damage(calibration if kind == "calibration" else folder)
+    options = SourceOptions(calibration=None if kind == "euroc" else str(calibration))
+    with pytest.raises(SourceError, match=message) as error:
+        open_source(folder, options)
+    assert "\n" not in str(error.value) and ("c.yaml" if kind == "calibration" else str(folder)) in str(error.value)
+
+
+def test_calibration_is_refused_where_it_does_not_apply(recorded, tmp_path):
+    folder, frames, _ = recorded
+    _write_calibration(tmp_path / "c.yaml", frames[0].K, frames[0].image.shape)
+    with pytest.raises(SourceError, match="--calibration does not apply to a deepslam log"):
+        open_source(folder / "run.mcap", SourceOptions(calibration=str(tmp_path / "c.yaml")))
