@@ -31,7 +31,7 @@ from deepslam.errors import InputError
 from deepslam.geometry import pose_matrix
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
 from deepslam.logs.images import MAX_PIXELS, encoded_size, too_large
-from deepslam.logs.schemas import FRAME_TOPICS
+from deepslam.logs.schemas import FRAME_TOPICS, METADATA_CHECKSUM, metadata_checksum
 
 MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 64 * 2**20  # a chunk declaring more than this uncompressed is refused (the writer's are 256 KiB)
@@ -342,11 +342,18 @@ def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
 
 
 def read_metadata(path: str | Path) -> dict:
-    """The run's metadata (configuration, seed, software version), JSON values decoded."""
+    """The run's metadata (configuration, seed, software version), JSON values decoded; a record that does
+    not match its checksum (logs since 2026-12 carry one) is reported in a warning."""
     path = Path(path)
     for item in raw_records(path, Damage()):
         if isinstance(item, Metadata) and item.name == "deepslam":
-            return {k: _maybe_json(v) for k, v in item.metadata.items()}
+            entries = dict(item.metadata)
+            stored = entries.pop(METADATA_CHECKSUM, None)
+            if stored is not None and stored != metadata_checksum(entries):
+                warnings.warn(
+                    f"{path}: the metadata record does not match its checksum: its settings may be wrong", stacklevel=2
+                )
+            return {k: _maybe_json(v) for k, v in entries.items()}
     raise LogError(f"{path}: no deepslam metadata; was it written by `deepslam run`?")
 
 

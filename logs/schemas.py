@@ -137,3 +137,15 @@ FRAME_TOPICS = ("/camera/image", "/camera/camera_info")
 WORLD_FRAME = "world"
 CAMERA_FRAME = "camera"  # the optical frame (x right, y down, z ahead)
 GROUNDTRUTH_FRAME = "camera_groundtruth"
+
+
+METADATA_CHECKSUM = "crc32"  # the metadata entry that protects the others (MCAP leaves metadata records unchecked)
+
+
+def metadata_checksum(entries: dict[str, str]) -> str:
+    """The CRC-32 (hex) of a metadata record's entries other than the checksum itself, in key order."""
+    import json
+    import zlib
+
+    payload = json.dumps({k: v for k, v in sorted(entries.items()) if k != METADATA_CHECKSUM}, sort_keys=True)
+    return f"{zlib.crc32(payload.encode()):08x}"

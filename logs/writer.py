@@ -24,7 +24,16 @@ from deepslam.files import OutputError, check_output, partial_path
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.interrupts import held_signals
 from deepslam.logs.frames import LogFrame
-from deepslam.logs.schemas import CAMERA_FRAME, GROUNDTRUTH_FRAME, TOPICS, WORLD_FRAME, msgdef, ros2_name
+from deepslam.logs.schemas import (
+    CAMERA_FRAME,
+    GROUNDTRUTH_FRAME,
+    METADATA_CHECKSUM,
+    TOPICS,
+    WORLD_FRAME,
+    metadata_checksum,
+    msgdef,
+    ros2_name,
+)
 
 PATH_POSES_AT_KEYFRAMES = 200  # poses of each path published at a keyframe (the whole path at the end)
 TRACK_AGE_SCALE = 20  # frames over which a track's colour goes from new to old
@@ -108,9 +117,8 @@ class LogWriter:
         self._schemas = {
             topic: self._writer.register_msgdef(ros2_name(kind), msgdef(kind)) for topic, kind in TOPICS.items()
         }
-        self._writer.add_metadata(
-            "deepslam", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
-        )
+        entries = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
+        self._writer.add_metadata("deepslam", entries | {METADATA_CHECKSUM: metadata_checksum(entries)})
         self.frames = 0
         self._first_seen: dict[int, int] = {}  # track id -> the frame it was first logged in (live tracks only)
         self._paths: dict[str, list[tuple[int, np.ndarray]]] = {"/estimate/path": [], "/groundtruth/path": []}

@@ -482,3 +482,16 @@ def test_a_chunk_that_lies_about_its_size_is_skipped_fast_with_bounded_memory(or
     (clean, _, clean_mb), (frames, seconds, bomb_mb) = ([float(v) for v in r.stdout.split()[:3]] for r in runs)
     assert 0 < frames < clean and seconds < 5 and bomb_mb - clean_mb < 300, runs[1].stdout
     assert "chunk 2" in runs[1].stdout and "declares 1000 bytes but holds more" in runs[1].stdout
+
+
+def test_a_flipped_byte_in_the_metadata_is_reported(oracle_log, tmp_path):
+    path, _ = oracle_log
+    data = path.read_bytes()
+    assert read_metadata(path)["scenario"]["seed"] == 3
+    flipped = tmp_path / "flipped.mcap"
+    flipped.write_bytes(data.replace(b'"seed": 3', b'"seed": 7', 1))
+    with pytest.warns(UserWarning, match="metadata record does not match its checksum"):
+        assert read_metadata(flipped)["scenario"]["seed"] == 7
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_metadata(path)  # an intact record says nothing
