@@ -399,9 +399,10 @@ def _eval_commands(commands) -> None:
         parser.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the .txt, .json and plots")
         add_options(parser, Workers)
         parser.add_argument(
-            "--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
-            help="run the pieces on a Ray cluster at ADDRESS (as `ray start --head` printed it), or with no ADDRESS "
-            "on a local one bound to 127.0.0.1 with --jobs CPUs (needs pip install -e '.[ray]')",
+            "--ray", default=None, metavar="ADDRESS",
+            help="run the pieces on the Ray cluster at ADDRESS, as `ray start --head` printed it (needs pip install "
+            "-e '.[ray]'); a cluster listens on every network interface of its machines, so start it on purpose "
+            "(--jobs N runs local processes instead)",
         )  # fmt: skip
 
 

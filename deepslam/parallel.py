@@ -22,13 +22,14 @@ Result = TypeVar("Result")
 
 @dataclass(frozen=True)
 class Workers:
-    """Where the pieces run: ``jobs`` local processes (1: in this process), or a Ray cluster at
-    ``ray_address`` ("local" starts one on this machine, bound to 127.0.0.1)."""
+    """Where the pieces run: ``jobs`` local processes (1: in this process), or the Ray cluster at
+    ``ray_address`` (host:port). No local Ray cluster is started: Ray (2.60) listens on every network
+    interface whatever node address it is given, so a cluster is something to start on purpose."""
 
     jobs: int = field(
         default=1, metadata={"help": "local worker processes (one torch thread each)", "min": 1, "max": 256}
     )
-    ray_address: str | None = None  # the CLI's --ray [ADDRESS]
+    ray_address: str | None = None  # the CLI's --ray ADDRESS
 
     def __post_init__(self):
         if self.jobs < 1:
@@ -103,20 +104,15 @@ def _run(fn, item, describe):
 
 
 def _on_ray(fn, items, workers: Workers, describe, progress) -> list:
-    """The same on Ray: a local cluster on 127.0.0.1 (usage statistics and dashboard off) or ``address``."""
+    """The same on the Ray cluster at ``workers.ray_address`` (usage statistics off)."""
     try:
         import ray
     except ImportError:
         raise InputError('--ray needs Ray: pip install -e ".[ray]" (or pip install ray)') from None
+    _check_reachable(workers.ray_address)
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    if workers.ray_address != "local":
-        _check_reachable(workers.ray_address)
     try:
-        if workers.ray_address == "local":
-            ray.init(num_cpus=workers.jobs, include_dashboard=False, _node_ip_address="127.0.0.1",
-                     log_to_driver=False)  # fmt: skip
-        else:
-            ray.init(address=workers.ray_address, log_to_driver=False)
+        ray.init(address=workers.ray_address, log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as error:
         raise InputError(f"cannot reach a Ray cluster at {workers.ray_address}: {error}") from None
     try:
