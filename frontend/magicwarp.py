@@ -18,7 +18,13 @@ from deepslam.geometry import fit_homography, in_image, warp_points
 from deepslam.interrupts import checkpoint
 
 WEIGHTS = Path(__file__).parent / "weights"
-MIN_POINTS = 4  # a homography needs four points; fewer in either image and MagicWarp declines
+MIN_POINTS = 4  # a homography needs four distinct points; fewer in either image and MagicWarp declines
+SUPPORT_PX = 3.0  # a point of image a warped within this of a point of b supports the homography
+MIN_SUPPORT = 0.4  # the share of points (of the smaller set) a homography needs; unrelated sets reach about 0.2
+
+
+class DegeneratePoints(InputError):
+    """Point sets MagicWarp cannot relate: too few distinct points, or no overlap under its homography."""
 
 
 class MagicWarpNet(nn.Module):
@@ -59,7 +65,7 @@ def normalizer(size: tuple[int, int]) -> np.ndarray:
 
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:
     points = np.asarray(points, np.float64)
-    if points.ndim != 2 or points.shape[1] < 2:
+    if points.ndim != 2 or points.shape[1] not in (2, 3):
         raise InputError(f"{name} must be an (N, 2) or (N, 3) array of (x, y[, score]), got shape {points.shape}")
     return points[:, :2]
 
@@ -96,7 +102,12 @@ class MagicWarp:
         return H / H[:, 2:3, 2:3]
 
     def estimate(
-        self, points_a: np.ndarray, points_b: np.ndarray, image_size: tuple[int, int] = (120, 160), iterations: int = 1
+        self,
+        points_a: np.ndarray,
+        points_b: np.ndarray,
+        image_size: tuple[int, int] = (120, 160),
+        iterations: int = 1,
+        min_support: float = MIN_SUPPORT,
     ) -> np.ndarray:
         """The homography between two point images, regressed by the network.
 
@@ -106,10 +117,13 @@ class MagicWarp:
             image_size: (H, W) of both images.
             iterations: with more than 1, ``points_a`` are warped by the estimate so far, estimated again
                 and composed (the paper's H = H2 H1 applied to a).
+            min_support: the share of points (of the smaller set) that must lie within ``SUPPORT_PX`` of a
+                partner under the homography (0: any homography; the tracker, which refines it, asks none).
 
         Returns:
-            ``H_ab`` (3, 3) float64 mapping pixels of a to b, ``H[2, 2] == 1``. ``InputError`` for fewer than
-            ``MIN_POINTS`` points in either image, non-finite coordinates or points outside the image: no
+            ``H_ab`` (3, 3) float64 mapping pixels of a to b, ``H[2, 2] == 1``. ``InputError`` for another
+            shape, non-finite coordinates or points outside the image; ``DegeneratePoints`` for fewer than
+            ``MIN_POINTS`` distinct points in either image or sets the homography does not relate: no
             homography is invented.
 
         Example:
@@ -129,15 +143,23 @@ class MagicWarp:
             outside = int((~in_image(points, image_size)).sum())
             if outside:
                 raise InputError(f"{name}: {outside} points lie outside the {image_size[0]}x{image_size[1]} image")
-        if min(len(points_a), len(points_b)) < MIN_POINTS:
-            raise InputError(
-                f"MagicWarp needs at least {MIN_POINTS} points in each image, got {len(points_a)} and {len(points_b)}"
+        distinct = [len(np.unique(np.round(p, 2), axis=0)) for p in (points_a, points_b)]
+        if min(distinct) < MIN_POINTS:
+            raise DegeneratePoints(
+                f"MagicWarp needs at least {MIN_POINTS} points in each image, all distinct; got {distinct[0]} and "
+                f"{distinct[1]} distinct"
             )
         H = np.eye(3)
         for _ in range(iterations):
             checkpoint()  # Ctrl-C and SIGTERM take effect between iterations
             H = self.estimate_batch([(warp_points(points_a, H), points_b)], image_size)[0] @ H
             H /= H[2, 2]
+        supported = support(points_a, points_b, H)
+        if supported < min_support:
+            raise DegeneratePoints(
+                f"the point sets do not overlap under MagicWarp's homography: {supported:.0%} of the points lie "
+                f"within {SUPPORT_PX:g} px of a partner (at least {min_support:.0%} needed)"
+            )
         return H
 
 
@@ -182,6 +204,13 @@ def _each_once(pairs: list[np.ndarray], count_b: int) -> np.ndarray:
     return np.stack(np.divmod(np.unique(np.vstack(pairs) @ np.array([count_b, 1])), count_b), 1)
 
 
+def support(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray) -> float:
+    """The share of points of the smaller set that ``H`` (3, 3) relates: points of a (N, 2) warped within
+    ``SUPPORT_PX`` of a point of b (M, 2), over min(N, M)."""
+    distances, _ = cKDTree(points_b).query(warp_points(points_a, H), distance_upper_bound=SUPPORT_PX)
+    return float(np.isfinite(distances).sum() / max(min(len(points_a), len(points_b)), 1))
+
+
 def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: float = 4.0) -> np.ndarray:
     """Correspondences without descriptors: warp ``points_a`` by ``H`` into b and snap each to its nearest
     point of b.
@@ -191,8 +220,8 @@ def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: f
     candidates within ``max_dist`` come from k-d trees (scipy), not an (N, M) distance matrix.
 
     Args:
-        points_a: (N, 2+) pixels of image a.
-        points_b: (M, 2+) pixels of image b.
+        points_a: (N, 2) or (N, 3) pixels (x, y[, score]) of image a.
+        points_b: (M, 2) or (M, 3) pixels of image b.
         H: ``H_ab`` (3, 3).
         max_dist: the largest distance (px) of a match.
 

@@ -157,7 +157,11 @@ class MagicTracker(Tracker):
         without, MagicWarp's estimate as it is. With fewer than ``MIN_POINTS`` points in either frame
         MagicWarp has nothing to go on: the previous H and the identity are the only guesses."""
         enough = min(len(self.detections), len(points)) >= MIN_POINTS
-        guesses = [self.warp.estimate(self.detections, points, image_shape, self.iterations)] if enough else []
+        guesses = (
+            [self.warp.estimate(self.detections, points, image_shape, self.iterations, min_support=0.0)]
+            if enough
+            else []
+        )
         if not self.refine:
             return guesses[0] if guesses else self.last_homography
         return refine(self.detections, points, guesses + [self.last_homography, np.eye(3)])

@@ -327,7 +327,7 @@ def test_magic_tracker_keeps_its_tracks_when_magicwarp_is_far_off():
     from deepslam.sim.pointsets import detector_points
 
     class FarOff:  # every estimate 20 px away from the truth: too far for snapping to mend
-        def estimate(self, points_a, points_b, image_size, iterations=1):
+        def estimate(self, points_a, points_b, image_size, iterations=1, min_support=0.0):
             return np.array([[1.0, 0, 20], [0, 1, -20], [0, 0, 1]])
 
     points = detector_points(np.random.default_rng(1), 60, (120, 160))
@@ -481,3 +481,18 @@ def test_ctrl_c_takes_effect_between_magicwarp_iterations_inside_a_held_block():
     with pytest.raises(KeyboardInterrupt), held_signals():
         warp.estimate(points, points, iterations=1_000_000)  # about 20 minutes of work unless interrupted
     assert time.time() - started < 5
+
+
+def test_magicwarp_refuses_degenerate_or_unrelated_point_sets_instead_of_inventing_a_homography():
+    from deepslam.frontend.magicwarp import DegeneratePoints
+
+    warp, rng = MagicWarp.pretrained(), np.random.default_rng(1)
+    points = rng.uniform([10, 10], [150, 110], (60, 2))
+    with pytest.raises(DegeneratePoints, match="at least 4 points in each image, all distinct"):
+        warp.estimate(np.repeat(points[:1], 50, axis=0), points)  # 50 copies of one point
+    with pytest.raises(DegeneratePoints, match="do not overlap"):
+        warp.estimate(points, rng.uniform([10, 10], [150, 110], (60, 2)))  # unrelated sets
+    with pytest.raises(ValueError, match=r"must be an \(N, 2\) or \(N, 3\) array"):
+        warp.estimate(np.c_[points, np.zeros((60, 3))], points)  # (N, 5)
+    H = warp.estimate(points, points + [3.0, 0.0])  # related sets still give their homography
+    assert abs(H[0, 2] - 3) < 2
