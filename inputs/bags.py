@@ -91,11 +91,17 @@ class RosBag:
             raise SourceError(f"{self.path}: {connection.topic} has the unsupported encoding {message.encoding!r} "
                               f"(supported: {', '.join(RAW_ENCODINGS)})")  # fmt: skip
         channels, dtype = RAW_ENCODINGS[message.encoding]
-        if too_large((message.height, message.width)) or len(message.data) != message.height * message.step:
+        row = message.width * channels * np.dtype(dtype).itemsize
+        if (
+            min(message.height, message.width) < 1
+            or too_large((message.height, message.width))
+            or message.step < row
+            or len(message.data) != message.height * message.step
+        ):
             raise SourceError(f"{self.path}: a {message.height}x{message.width} image on {connection.topic} with "
                               f"{len(message.data)} bytes is too large or not as its header says")  # fmt: skip
         data = np.frombuffer(bytes(message.data), np.uint8).reshape(message.height, message.step)
-        pixels = data[:, : message.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
+        pixels = data[:, :row].copy().view(dtype)
         if message.is_bigendian and dtype == np.uint16:
             pixels = pixels.byteswap()
         return to_gray(pixels.reshape(message.height, message.width, channels).squeeze(-1) if channels == 1
@@ -125,7 +131,9 @@ class RosBag:
             if (info.height, info.width) != native and info.height:
                 raise SourceError(f"{self.path}: {self.info_topic} is for {info.height}x{info.width} images, "
                                   f"{self.image_topic} has {native[0]}x{native[1]}")  # fmt: skip
-            return Calibration.checked(info.k, list(info.d), info.distortion_model, native, self.info_topic)
+            return Calibration.checked(
+                info.k, list(info.d), info.distortion_model, native, f"{self.path} {self.info_topic}"
+            )
         raise SourceError(f"{self.path}: no messages on {self.info_topic}")
 
     def _truth(self) -> dict[int, np.ndarray]:

@@ -67,7 +67,7 @@ def pose(position: list[str], quaternion_xyzw: list[str], where: str) -> np.ndar
     """``T_world_cam`` (4, 4) of a position and a unit quaternion (x, y, z, w), all fields checked."""
     p = np.array([number(v, f"{where}, position") for v in position])
     q = np.array([number(v, f"{where}, quaternion") for v in quaternion_xyzw])
-    norm = float(np.linalg.norm(q))
+    norm = float(np.linalg.norm(q)) if np.all(np.abs(q) <= 2) else np.inf  # huge parts would overflow the norm
     if abs(norm - 1) > UNIT_QUATERNION_TOLERANCE:
         raise SourceError(f"{where}: the quaternion {q.tolist()} is not a unit quaternion (norm {norm:.3g})")
     return pose_matrix(p, q)

@@ -28,7 +28,9 @@ def recorded(tmp_path_factory):
     return folder, frames, reference["drift"]
 
 
-def _write_bag(path, frames, encoding: str, distortion=(0.0, 0.0, 0.0, 0.0, 0.0)):
+def _write_bag(path, frames, encoding: str, distortion=(0.0, 0.0, 0.0, 0.0, 0.0), tamper=None):
+    """A rosbag2 folder of the frames: images, CameraInfo and Odometry ground truth; ``tamper(topic kind,
+    message, types)``, if given, may return another message for each one written."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -46,6 +48,7 @@ def _write_bag(path, frames, encoding: str, distortion=(0.0, 0.0, 0.0, 0.0, 0.0)
             step = w * (1 if encoding == "mono8" else 3)
             message = types["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding=encoding,
                                                      is_bigendian=0, step=step, data=pixels.reshape(-1))  # fmt: skip
+            message = tamper("image", message, types) if tamper else message
             writer.write(image, f.stamp_ns, store.serialize_cdr(message, image.msgtype))
             roi = types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
             camera = types["sensor_msgs/msg/CameraInfo"](
@@ -53,6 +56,7 @@ def _write_bag(path, frames, encoding: str, distortion=(0.0, 0.0, 0.0, 0.0, 0.0)
                 k=f.K.ravel(), r=np.eye(3).ravel(), p=np.hstack([f.K, np.zeros((3, 1))]).ravel(),
                 binning_x=0, binning_y=0, roi=roi,
             )  # fmt: skip
+            camera = tamper("info", camera, types) if tamper else camera
             writer.write(info, f.stamp_ns, store.serialize_cdr(camera, info.msgtype))
             x, y, z = f.T_groundtruth[:3, 3]
             q = quaternion_from_matrix(f.T_groundtruth[:3, :3])
@@ -70,6 +74,7 @@ def _write_bag(path, frames, encoding: str, distortion=(0.0, 0.0, 0.0, 0.0, 0.0)
                     covariance=covariance,
                 ),
             )  # fmt: skip
+            odometry = tamper("truth", odometry, types) if tamper else odometry
             writer.write(truth, f.stamp_ns, store.serialize_cdr(odometry, truth.msgtype))
 
 
