@@ -129,9 +129,14 @@ class LogWriter:
         )
 
     def write(self, frame: LogFrame) -> None:
-        """Write every topic of one frame (those whose data the frame has); Ctrl-C waits for the whole frame."""
+        """Write every topic of one frame (those whose data the frame has); Ctrl-C waits for the whole frame.
+        An ``OSError`` (a full disk) names the partial log, which keeps the frames written before it."""
         with held_signals():
-            self._write(frame)
+            try:
+                self._write(frame)
+            except OSError as error:
+                note = f" ({self.frames} whole frames kept: deepslam recover {self.partial} --out FILE)"
+                raise OSError(error.errno, (error.strerror or str(error)) + note, str(self.partial)) from None
 
     def _write(self, frame: LogFrame) -> None:
         """One frame's messages, topic by topic in a fixed order (each built by its own function)."""

@@ -495,3 +495,22 @@ def test_a_flipped_byte_in_the_metadata_is_reported(oracle_log, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_metadata(path)  # an intact record says nothing
+
+
+def test_a_full_disk_names_the_partial_log_and_how_to_recover_it(tmp_path, monkeypatch, capsys):
+    import errno
+
+    out = tmp_path / "run.mcap"
+    real_write = LogWriter._write
+
+    def full_after_three_frames(self, frame):
+        if self.frames >= 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_write(self, frame)
+
+    monkeypatch.setattr(LogWriter, "_write", full_after_three_frames)
+    code = main(["run", "-q", "--frontend", "oracle", "--frames", "8", "--out", str(out)])
+    error = capsys.readouterr().err
+    assert code == 1 and f"{out}.partial: No space left on device" in error and "deepslam recover" in error, error
+    assert not out.exists() and len(error.strip().splitlines()) == 1
+    assert len(list(read_frames(partial_path(out)))) == 3  # what was written before can be recovered
