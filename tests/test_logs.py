@@ -158,11 +158,11 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def _run_until(out: Path, size: int) -> subprocess.Popen:
-    """A real `deepslam run` subprocess, returned once its log in progress (``OUT.partial``) has grown
-    past ``size`` bytes."""
+def _run_until(out: Path, size: int, options: tuple[str, ...] = ("--frontend", "oracle")) -> subprocess.Popen:
+    """A real `deepslam run` subprocess (with ``options``), returned once its log in progress
+    (``OUT.partial``) has grown past ``size`` bytes."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "deepslam", "run", "--frontend", "oracle", "--frames", "400", "--out", str(out)],
+        [sys.executable, "-m", "deepslam", "run", *options, "--frames", "400", "--out", str(out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         preexec_fn=_default_sigint,  # as from a terminal, even where the test runner was started with Ctrl-C ignored
@@ -316,6 +316,19 @@ def test_ctrl_c_and_sigterm_finish_the_file_cleanly(tmp_path, stop, code, word):
         warnings.simplefilter("error")  # no truncation warning
         frames = list(read_frames(out))
     assert len(frames) >= 15
+
+
+@pytest.mark.slow
+def test_sigterm_ends_a_run_of_slow_frames_within_seconds(tmp_path):
+    out = tmp_path / "slow.mcap"
+    slow = ("--frontend", "magic", "--warp-iterations", "10", "--size", "480", "640")  # about a second a frame
+    process = _run_until(out, 1, slow)
+    time.sleep(1.5)  # inside a frame
+    process.send_signal(signal.SIGTERM)
+    started = time.time()
+    process.communicate(timeout=60)
+    assert process.returncode == 143 and time.time() - started < 5
+    assert len(list(read_frames(out))) >= 1  # a finished log
 
 
 def test_outputs_never_clobber_inputs_or_each_other(oracle_log, tmp_path):
