@@ -1,5 +1,6 @@
-"""`deepslam`: one command wiring the packages; every command's logic lives in them, every setting in
-their config dataclasses (``deepslam.options`` turns those into options)."""
+"""deepslam: simulated camera runs, replays of recorded data, drift, reports, evaluations and training
+of the system of "Toward Geometric Deep SLAM" (DeTone et al. 2017). `deepslam COMMAND --help` explains a
+command and every option, with its default."""
 
 from __future__ import annotations
 
@@ -15,6 +16,13 @@ from deepslam.errors import InputError
 from deepslam.options import add_options, from_args, number_type
 
 log = logging.getLogger("deepslam")
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line naming the command, then exit 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
@@ -167,6 +175,8 @@ def _print_drift(drift: dict, scale: str) -> None:
     print(f"drift (scale: {scale}{meaning})")
     for key, value in drift.items():
         print(f"  {key:<16} {value:.4f}" if isinstance(value, float) else f"  {key:<16} {value}")
+    print("  (ate: RMSE of positions after alignment, m; rpe: mean over consecutive frames, m and deg;")
+    print("   *_error_px: medians against the simulator's truth)")
 
 
 def _run(args: argparse.Namespace) -> None:
@@ -190,6 +200,8 @@ def _replay(args: argparse.Namespace) -> None:
 
     configs = _config(args, TrackerConfig), _config(args, OdometryConfig)
     sources = _config(args, SourceOptions)
+    if args.scale == "plane" and args.plane_distance is None:
+        raise _UsageError("--scale plane needs --plane-distance M, the first camera's distance to the dominant plane")
     result = replay(args.input, *configs, args.out, {"version": _version()}, source_options=sources)
     if result["drift"] is not None:
         _print_drift(result["drift"], result["scale"])
@@ -243,7 +255,7 @@ def _command(commands, name: str, text: str, func, *configs: type, exclude: tupl
     parser = commands.add_parser(name, help=text, description=text, formatter_class=_Formatter, parents=[_COMMON])
     for config in configs:
         add_options(parser, config, exclude)
-    parser.set_defaults(func=func)
+    parser.set_defaults(func=func, parser=parser)
     return parser
 
 
@@ -436,7 +448,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The command line; with ``argv``, the training options only where it asks to train, so that every
     other command and ``--help`` start without torch (without ``argv``: all of it)."""
     words = ["train"] if argv is None else [word for word in argv if not word.startswith("-")]
-    parser = argparse.ArgumentParser(prog="deepslam", description=__doc__, formatter_class=_Formatter)
+    parser = _Parser(prog="deepslam", description=__doc__, formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"deepslam {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _train_commands(commands, detailed=words[:1] == ["train"])
@@ -483,7 +495,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args.func(args)
     except _UsageError as error:
-        parser.error(str(error))
+        getattr(args, "parser", parser).error(str(error))
     except BrokenPipeError:  # the reader of our output went away (`deepslam ... | head`)
         sys.stdout = open(os.devnull, "w")  # nothing more reaches it: do not fail at exit
         return 0

@@ -53,6 +53,11 @@ class SourceOptions:
         },
     )
 
+    def __post_init__(self):
+        size = self.size
+        if size is not None and (len(size) != 2 or min(size) < 8 or size[0] % 8 or size[1] % 8):
+            raise SourceError(f"--size {' '.join(map(str, size))}: height and width must be multiples of 8")
+
 
 @dataclass
 class SourceFrame:

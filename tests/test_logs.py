@@ -110,7 +110,8 @@ def test_evo_agrees_with_deepslam_drift(oracle_log, tmp_path):
 def test_drift_plots_and_tum(oracle_log, tmp_path):
     path, _ = oracle_log
     comparison = analysis.analyse([path, path])
-    assert len(comparison.table().splitlines()) == 2  # the header and the one log
+    table = comparison.table().splitlines()
+    assert len(table) == 3 and "RMSE" in table[-1] and "mean" in table[-1]  # the header, the one log, the meanings
     plots = comparison.save(tmp_path)
     assert plots[0].stat().st_size > 10_000 and [p.name for p in plots[-2:]] == ["drift.txt", "drift.json"]
     assert (

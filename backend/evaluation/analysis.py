@@ -64,7 +64,10 @@ class DriftComparison(Result):
         return self.logs
 
     def lines(self) -> list[str]:
-        return table_lines(self.logs)
+        return table_lines(self.logs) + [
+            f"ATE: RMSE of positions after SE(3) / Sim(3) alignment (m); RPE: mean over frame pairs {self.delta} apart "
+            "(m, deg); final: position error at the end, % of the true path"
+        ]
 
     def plots(self, out: Path) -> list[Path]:
         return save_plots(list(self.logs), out, self.delta)
@@ -72,7 +75,7 @@ class DriftComparison(Result):
 
 def table_lines(results: dict[str, dict]) -> list[str]:
     header = (
-        f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE t':>8} {'RPE deg':>8} "
+        f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE m':>8} {'RPE deg':>8} "
         f"{'final %':>8} {'path m':>7} {'lost':>5}"
     )
     rows = [header]
