@@ -153,6 +153,7 @@ def test_a_homography_opencv_cannot_decompose_gives_a_failed_pose(rng):
     assert planar.model == "failed" and "not finite" in planar.reason and np.isfinite(planar.T_c1_c2).all()
 
 
+@pytest.mark.slow
 def test_a_noise_free_oracle_in_the_room_keeps_a_finite_trajectory():
     # along the line, seed 1, the exact matches of frame 47 fit a homography that OpenCV cannot decompose
     output = run_frames(

@@ -24,6 +24,7 @@ def test_shift_repeatability_example_scores_a_whole_cell_shift_as_no_shift(capsy
         assert float(row[1]) == 1.0 and float(row[3]) > 0.85, row
 
 
+@pytest.mark.slow
 def test_subpixel_precision_example_finds_parabola_labels_follow_a_sub_pixel_shift_closer(capsys, monkeypatch):
     monkeypatch.setattr("sys.argv", ["subpixel_precision.py", "--views", "3"])  # the built-in validation photographs
     runpy.run_path(str(EXAMPLES / "subpixel_precision.py"), run_name="__main__")
@@ -50,3 +51,10 @@ def test_own_frames_example_runs_the_pipeline_on_a_folder_of_images(tmp_path, ca
     assert len(lines) == 13 and lines[-1].startswith("12 frames")
     assert not any(line.endswith("lost True") for line in lines[:-1])
     assert float(lines[-1].split("path length ")[1].split()[0]) > 0  # it moved
+
+
+def test_the_sample_calibration_file_reads_as_a_camera():
+    from deepslam.inputs import Calibration
+
+    camera = Calibration.from_yaml(EXAMPLES / "calibration.yaml", (480, 640))
+    assert camera.model == "plumb_bob" and camera.size == (480, 640) and camera.K[0, 0] == 517.3

@@ -1,6 +1,7 @@
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -85,9 +86,11 @@ def test_evo_agrees_with_deepslam_drift(oracle_log, tmp_path):
     _, truth, estimate = analysis.load_trajectories(path)
     ours = drift.ate_rmse(estimate, truth)
     zip_path = tmp_path / "ape.zip"
+    # evo's tools sit beside the interpreter that runs the tests, on PATH or not (a venv used without activating)
+    evo_ape = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
     subprocess.run(
         [
-            "evo_ape",
+            evo_ape,
             "mcap",
             str(path),
             "/groundtruth/pose",

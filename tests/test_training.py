@@ -110,6 +110,7 @@ def test_a_diverging_run_stops_with_its_last_good_checkpoint(tmp_path):
     assert all(torch.equal(good[k], kept[k]) for k in good)
 
 
+@pytest.mark.slow
 def test_magicwarp_training_runs_and_resumes(tmp_path):
     config = train_magicwarp.TrainConfig(iterations=2, batch=4, validate_every=2)
     figures = train_magicwarp.run(tmp_path, config)
@@ -165,6 +166,7 @@ def test_a_resumed_run_whose_validation_changed_restarts_its_best_checkpoint(tmp
     assert torch.load(tmp_path / "best.pt", weights_only=False)["step"] == 3
 
 
+@pytest.mark.slow
 def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
     base = train_magicpoint.TrainConfig(iterations=1, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path / "base", base)
@@ -195,6 +197,7 @@ def test_fine_tuning_starts_from_weights_and_ships_the_moving_average(tmp_path):
     assert torch.equal(shipped["model"][name], second["ema"][name])
 
 
+@pytest.mark.slow
 def test_init_widens_a_narrower_network_without_changing_what_it_computes(tmp_path):
     narrow, wide = MagicWarpConfig(widths=(8, 8, 16, 16), hidden=16), MagicWarpConfig(widths=(8, 16, 16, 32), hidden=32)
     train_magicwarp.run(
@@ -215,6 +218,7 @@ def test_init_widens_a_narrower_network_without_changing_what_it_computes(tmp_pa
         load_weights(MagicWarpNet(MagicWarpConfig(widths=(8, 8, 16, 16), pooled=(2, 2), hidden=16)), weights)
 
 
+@pytest.mark.slow
 def test_init_deepens_a_network_with_identity_blocks(tmp_path):
     shallow = MagicWarpConfig(widths=(8, 8, 16, 16), hidden=16)
     train_magicwarp.run(
@@ -337,6 +341,7 @@ def test_labels_are_refined_as_configured_and_their_cache_knows_how():
     assert labelling_key(AdaptConfig(label_refine="parabola"), detector, [], 1)["label_refine"] == "parabola"
 
 
+@pytest.mark.slow
 def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_path):
     from deepslam.frontend.training import adaptation
 
@@ -359,6 +364,7 @@ def test_homographic_adaptation_labels_trains_resumes_and_guards_its_cache(tmp_p
         adaptation.run(tmp_path / "other", replace(config, photos=(str(tmp_path / "missing"),)))
 
 
+@pytest.mark.slow
 def test_homographic_adaptation_trains_a_wider_anti_aliased_detector_from_its_teacher(tmp_path):
     from deepslam.frontend.training import adaptation
 
@@ -394,6 +400,7 @@ def test_shift_consistency_is_zero_for_a_heatmap_that_moves_with_its_view():
     assert float(shift_disagreement(heat, heat.flip(1), shifts)) > 0.1
 
 
+@pytest.mark.slow
 def test_homographic_adaptation_trains_with_shift_consistency(tmp_path):
     from deepslam.frontend.training import adaptation
 
@@ -436,6 +443,7 @@ def test_two_ranks_train_in_step_and_resume_their_streams(tmp_path):
     assert odd.returncode != 0 and "--batch 3 does not divide among 2 ranks" in odd.stderr
 
 
+@pytest.mark.slow
 def test_the_same_seed_trains_the_same_bytes_interrupted_or_not(tmp_path):
     config = train_magicpoint.TrainConfig(iterations=4, batch=2, validate_every=2, validation_per_category=1)
     train_magicpoint.run(tmp_path / "a", config)
