@@ -327,14 +327,16 @@ def _pipeline_commands(commands) -> None:
         commands,
         "replay",
         "run the pipeline on recorded data into a new log: a deepslam log, a ROS 2 bag, a TUM RGB-D or an "
-        "EuRoC/ASL folder",
+        "EuRoC/ASL folder, or a video file",
         _replay,
         TrackerConfig,
         OdometryConfig,
         SourceOptions,
     )
     replay.add_argument(
-        "input", type=Path, help="a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM or EuRoC folder"
+        "input",
+        type=Path,
+        help="a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM or EuRoC folder, or a video file",
     )
     replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
     report = _command(commands, "report", "one self-contained HTML page comparing runs from their logs", _report)

@@ -42,6 +42,10 @@ class SourceOptions:
             "metavar": "FILE",
         },
     )
+    fps: float | None = field(
+        default=None,
+        metadata={"help": "video files: frames per second (default: the container's)", "min": 0.001, "max": 1000},
+    )
     size: tuple[int, int] | None = field(
         default=None,
         metadata={
@@ -91,8 +95,8 @@ def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> S
     """Recorded camera data, checked before any work starts.
 
     Args:
-        path: a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM RGB-D folder or an EuRoC/ASL
-            folder, told apart by what they contain.
+        path: a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM RGB-D folder, an EuRoC/ASL
+            folder or a video file, told apart by what they contain.
         options: topics, a calibration file, the size the pipeline runs at (``SourceOptions``).
 
     Returns:
@@ -103,6 +107,7 @@ def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> S
     from deepslam.inputs.bags import RosBag
     from deepslam.inputs.deepslam_log import DeepslamLog
     from deepslam.inputs.folders import EurocFolder, TumFolder
+    from deepslam.inputs.video import VIDEO_SUFFIXES, VideoFile
     from deepslam.logs.reader import LogError, check_log, read_metadata
 
     path = Path(path)
@@ -117,6 +122,10 @@ def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> S
             return RosBag(path, options)
         raise SourceError(f"{path}: a folder that is neither a TUM RGB-D (rgb.txt), an EuRoC/ASL (cam0/data.csv) "
                           f"nor a rosbag2 folder (metadata.yaml)")  # fmt: skip
+    if path.suffix.lower() in VIDEO_SUFFIXES:
+        return VideoFile(path, options)
+    if options.fps is not None:
+        raise SourceError(f"{path}: --fps applies to video files only (this input has its own stamps)")
     try:
         check_log(path)
     except LogError as error:

@@ -298,3 +298,24 @@ def test_calibration_is_refused_where_it_does_not_apply(recorded, tmp_path):
     _write_calibration(tmp_path / "c.yaml", frames[0].K, frames[0].image.shape)
     with pytest.raises(SourceError, match="--calibration does not apply to a deepslam log"):
         open_source(folder / "run.mcap", SourceOptions(calibration=str(tmp_path / "c.yaml")))
+
+
+def test_a_video_file_replays_with_a_calibration_and_its_frame_rate(recorded, tmp_path):
+    _, frames, _ = recorded
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, frames[0].image.shape[::-1], False)
+    for frame in frames:
+        writer.write(frame.image)
+    writer.release()
+    _write_calibration(tmp_path / "c.yaml", frames[0].K, frames[0].image.shape)
+    source = open_source(video, SourceOptions(calibration=str(tmp_path / "c.yaml")))
+    loaded = list(source.frames())
+    assert len(source) == len(loaded) == len(frames) and source.frames_with_truth == 0
+    assert [f.stamp_ns for f in loaded[:3]] == [0, 100_000_000, 200_000_000]  # 10 frames a second
+    assert np.abs(loaded[5].image.astype(int) - frames[5].image).mean() < 8  # MJPEG keeps the picture
+    out = tmp_path / "replayed.mcap"
+    argv = ["replay", str(video), "--calibration", str(tmp_path / "c.yaml"), "--fps", "30", "--scale", "none"]
+    assert main([*argv, "-q", "--frontend", "classical", "--out", str(out)]) == 0
+    assert read_frames(out).__next__().stamp_ns == 0 and len(list(read_frames(out))) == len(frames)
+    with pytest.raises(SourceError, match="carries no calibration"):
+        open_source(video)
