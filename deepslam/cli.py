@@ -169,14 +169,17 @@ def _bench(args: argparse.Namespace) -> None:
     _save(bench.bench_detector(args.repeats) if args.target == "detector" else bench.bench_warp(args.repeats), args.out)
 
 
-def _print_drift(drift: dict, scale: str) -> None:
+def _print_summary(summary: dict, scale: str) -> None:
+    """A run's figures: what needs no truth, then the drift where there was truth."""
     meaning = {"gt": " = ground-truth step lengths", "plane": " = known distance to the dominant plane",
                "none": ": up to scale, drift after Sim(3) alignment only"}[scale]  # fmt: skip
-    print(f"drift (scale: {scale}{meaning})")
-    for key, value in drift.items():
-        print(f"  {key:<16} {value:.4f}" if isinstance(value, float) else f"  {key:<16} {value}")
-    print("  (ate: RMSE of positions after alignment, m; rpe: mean over consecutive frames, m and deg;")
-    print("   *_error_px: medians against the simulator's truth)")
+    print(f"run (scale: {scale}{meaning})")
+    for key, value in summary.items():
+        print(f"  {key:<20} {value:.4f}" if isinstance(value, float) else f"  {key:<20} {value}")
+    if "ate_sim3" in summary:
+        print("  (ate: RMSE of positions after alignment, m; rpe: mean over consecutive frames, m and deg)")
+    if "track_error_px" in summary:
+        print("  (*_error_px: medians against the simulator's truth)")
 
 
 def _run(args: argparse.Namespace) -> None:
@@ -187,7 +190,7 @@ def _run(args: argparse.Namespace) -> None:
 
     configs = _config(args, ScenarioConfig), _config(args, TrackerConfig), _config(args, OdometryConfig)
     result = simulate(*configs, args.out, {"version": _version()})
-    _print_drift(result["drift"], result["scale"])
+    _print_summary(result["summary"], result["scale"])
     print(f"  (online estimates, as logged; the final smoothed graph has ATE SE3 {result['smoothed_ate_se3']:.4f})")
     log.info(f"wrote {args.out}")
 
@@ -203,8 +206,7 @@ def _replay(args: argparse.Namespace) -> None:
     if args.scale == "plane" and args.plane_distance is None:
         raise _UsageError("--scale plane needs --plane-distance M, the first camera's distance to the dominant plane")
     result = replay(args.input, *configs, args.out, {"version": _version()}, source_options=sources)
-    if result["drift"] is not None:
-        _print_drift(result["drift"], result["scale"])
+    _print_summary(result["summary"], result["scale"])
     log.info(f"wrote {args.out}")
 
 

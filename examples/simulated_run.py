@@ -15,6 +15,6 @@ result = simulate(
     OdometryConfig(scale="gt"),
     out="out/example.mcap",
 )
-print({k: round(v, 4) for k, v in result["drift"].items()})
+print({k: round(v, 4) for k, v in result["summary"].items()})
 for frame in list(read_frames("out/example.mcap"))[:3]:
     print(frame.stamp_ns, len(frame.tracks), frame.T_estimate[:3, 3].round(3))

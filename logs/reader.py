@@ -341,12 +341,13 @@ def _complete(path: Path, stamp: int, parts: dict) -> LogFrame:
     )
 
 
-def read_metadata(path: str | Path) -> dict:
-    """The run's metadata (configuration, seed, software version), JSON values decoded; a record that does
-    not match its checksum (logs since 2026-12 carry one) is reported in a warning."""
+def read_metadata(path: str | Path, record: str = "deepslam") -> dict:
+    """The run's metadata (configuration, seed, software version), JSON values decoded, or another of its
+    records (``SUMMARY_RECORD``: the figures the run printed); a record that does not match its checksum (logs
+    since 2026-12 carry one) is reported in a warning."""
     path = Path(path)
     for item in raw_records(path, Damage()):
-        if isinstance(item, Metadata) and item.name == "deepslam":
+        if isinstance(item, Metadata) and item.name == record:
             entries = dict(item.metadata)
             stored = entries.pop(METADATA_CHECKSUM, None)
             if stored is not None and stored != metadata_checksum(entries):
@@ -354,7 +355,7 @@ def read_metadata(path: str | Path) -> dict:
                     f"{path}: the metadata record does not match its checksum: its settings may be wrong", stacklevel=2
                 )
             return {k: _maybe_json(v) for k, v in entries.items()}
-    raise LogError(f"{path}: no deepslam metadata; was it written by `deepslam run`?")
+    raise LogError(f"{path}: no {record} metadata; was it written by `deepslam run` (2026-12 or later)?")
 
 
 def _maybe_json(value: str):

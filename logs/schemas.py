@@ -139,6 +139,7 @@ CAMERA_FRAME = "camera"  # the optical frame (x right, y down, z ahead)
 GROUNDTRUTH_FRAME = "camera_groundtruth"
 
 
+SUMMARY_RECORD = "deepslam_summary"  # the metadata record of a run's figures, written when it ends
 METADATA_CHECKSUM = "crc32"  # the metadata entry that protects the others (MCAP leaves metadata records unchecked)
 
 

@@ -28,6 +28,7 @@ from deepslam.logs.schemas import (
     CAMERA_FRAME,
     GROUNDTRUTH_FRAME,
     METADATA_CHECKSUM,
+    SUMMARY_RECORD,
     TOPICS,
     WORLD_FRAME,
     metadata_checksum,
@@ -169,6 +170,12 @@ class LogWriter:
             self._put("/diagnostics/frame", _diagnostics_message(frame), t)
         self.frames += 1
         self._file.flush()
+
+    def add_summary(self, figures: dict) -> None:
+        """The run's figures (``RunOutput.summary``) as the metadata record "deepslam_summary", checksummed
+        like the run's settings (``read_metadata(path, "deepslam_summary")`` reads it)."""
+        entries = {k: json.dumps(v) for k, v in figures.items()}
+        self._writer.add_metadata(SUMMARY_RECORD, entries | {METADATA_CHECKSUM: metadata_checksum(entries)})
 
     def _annotations(self, stamp_ns: int, tracks: np.ndarray) -> dict:
         """Foxglove ``ImageAnnotations`` of one frame's tracks: a dot per point coloured by the track's age

@@ -161,7 +161,7 @@ def test_parallel_evaluations_give_the_serial_bytes(tmp_path, capsys):
         assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "jobs" / name).read_bytes(), name
     with pytest.raises(SystemExit) as exit_info:
         main([*sweep, "--jobs", "0"])
-    assert exit_info.value.code == 2 and "argument --jobs: must lie in [1, inf]" in capsys.readouterr().err
+    assert exit_info.value.code == 2 and "argument --jobs: must lie in [1, 256]" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -48,6 +48,11 @@ class Run:
         seconds = np.array([(f.stamp_ns - both[0].stamp_ns) / 1e9 for f in both])
         return seconds, np.stack([f.T_groundtruth for f in both]), np.stack([f.T_estimate for f in both])
 
+    def estimates(self) -> np.ndarray | None:
+        """The estimated poses (N, 4, 4) of the frames that have one, or None for fewer than two."""
+        poses = [f.T_estimate for f in self.frames if f.T_estimate is not None]
+        return np.stack(poses) if len(poses) >= 2 else None
+
 
 def load_run(path: Path) -> Run:
     """A log as a ``Run``; LogError if nothing of it can be read as a deepslam log."""
@@ -61,7 +66,7 @@ def load_run(path: Path) -> Run:
         metadata, notes = {}, [*notes, str(error)]
     run = Run(path, frames, metadata, notes)
     if run.poses() is None:
-        run.notes.append("no ground truth (/groundtruth/pose): drift figures are not available")
+        run.notes.append("no ground truth (/groundtruth/pose): drift figures are not available; the estimate is drawn")
     if not any(f.diagnostics for f in frames):
         run.notes.append("no per-frame diagnostics (/diagnostics/frame): written by deepslam 0.2.0 and later")
     return run
@@ -78,16 +83,19 @@ def _image_tag(png_base64: str, alt: str) -> str:
 
 
 def trajectory_figures(runs: list[Run]) -> str:
-    """Top views, translation error (after SE(3) alignment) and RPE over time, all runs together."""
+    """Top views of every run's estimate (aligned to its truth, with it, where the log has truth);
+    translation error (after SE(3) alignment) and RPE over time for the runs with truth."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     with_truth = [(run, run.poses()) for run in runs if run.poses() is not None]
-    if not with_truth:
-        return "<p>No run has ground truth: no drift plots.</p>"
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    estimates = [(run, run.estimates()) for run in runs if run.poses() is None and run.estimates() is not None]
+    if not with_truth and not estimates:
+        return "<p>No run has estimated poses: no trajectory plots.</p>"
+    fig, axes = plt.subplots(1, 3 if with_truth else 1, figsize=(15 if with_truth else 5.5, 4.2), squeeze=False)
+    axes = axes[0]
     for run, (seconds, truth, estimate) in with_truth:
         shown = np.sort(np.argsort(truth[:, :3, 3].std(0))[1:])  # the two axes with the most motion
         aligned = drift.align(estimate, truth, with_scale=False)
@@ -96,10 +104,14 @@ def trajectory_figures(runs: list[Run]) -> str:
                      label=f"{run.label} truth")  # fmt: skip
         axes[1].plot(seconds, np.linalg.norm(aligned[:, :3, 3] - truth[:, :3, 3], axis=1), label=run.label)
         axes[2].plot(seconds[1:], drift.rpe(estimate, truth)[0], label=run.label)
-    axes[0].set(title="top view (aligned, SE(3))", xlabel="m", ylabel="m")
+    for run, estimate in estimates:  # no truth: the estimate as it is, in the run's own units
+        shown = np.sort(np.argsort(estimate[:, :3, 3].std(0))[1:])
+        axes[0].plot(estimate[:, shown[0], 3], estimate[:, shown[1], 3], label=f"{run.label} estimate (no truth)")
+    axes[0].set(title="top view (aligned to the truth, SE(3), where there is one)", xlabel="m", ylabel="m")
     axes[0].axis("equal")
-    axes[1].set(title="translation error over time (ATE)", xlabel="time (s)", ylabel="m")
-    axes[2].set(title="RPE over time (1 frame)", xlabel="time (s)", ylabel="m")
+    if with_truth:
+        axes[1].set(title="translation error over time (ATE)", xlabel="time (s)", ylabel="m")
+        axes[2].set(title="RPE over time (1 frame)", xlabel="time (s)", ylabel="m")
     for ax in axes:
         ax.legend(fontsize=7)
     fig.tight_layout()

@@ -17,6 +17,7 @@ from deepslam.backend.pipeline import Pipeline
 from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
 from deepslam.frontend.tracking import Tracker, Tracks, Truth
+from deepslam.geometry import path_length
 from deepslam.inputs import SourceOptions, open_source
 from deepslam.interrupts import held_signals
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
@@ -88,23 +89,36 @@ class RunOutput:
     track_errors: np.ndarray
     pair_errors: np.ndarray
     pipeline: Pipeline
+    frame_ms: np.ndarray  # (N,) the pipeline's milliseconds per frame
 
-    def summary(self, scale: str = "gt") -> dict:
-        """Drift over the frames with ground truth (with ``scale`` "none", only what survives a Sim(3)
-        alignment), lost frames and the median track error against truth."""
-        figures: dict = {}
+    def summary(self, scale: str = "gt", timing: bool = True) -> dict:
+        """What a run shows without truth: frames, keyframes, lost frames, the estimated path's length (in the
+        run's units: metres, or with ``scale`` "none" the first plane distances), median tracks and inliers a
+        frame and milliseconds a frame; then the drift over the frames with ground truth (with "none", only
+        what survives a Sim(3) alignment) and the median track and pair errors against the simulator, where
+        they can be measured. ``timing`` False leaves out the milliseconds (they differ from run to run)."""
+        measured = [d for d in self.diagnostics[1:]]  # the first frame has no pose to measure
+        figures: dict = {
+            "frames": len(self.estimate),
+            "keyframes": sum(d.keyframe for d in self.diagnostics),
+            "lost_frames": sum(d.lost for d in self.diagnostics),
+            "path_length_estimate": path_length(self.estimate),
+            "tracks_per_frame": _median(np.array([d.tracks for d in self.diagnostics], float)),
+            "inliers_per_frame": _median(np.array([d.inliers for d in measured], float)),
+        }
+        if timing:
+            figures["ms_per_frame"] = _median(self.frame_ms)
         if self.truth is not None:
             known = ~np.isnan(self.truth[:, 0, 0])
             if known.sum() >= 2:
-                figures = drift.summary(self.estimate[known], self.truth[known])
-                if scale == "none":
-                    figures = {k: figures[k] for k in ("ate_sim3", "path_length", "frames")}
-                figures["frames_with_truth"] = int(known.sum())
-        return figures | {
-            "lost_frames": sum(d.lost for d in self.diagnostics),
-            "track_error_px": _median(self.track_errors),
-            "pair_error_px": _median(self.pair_errors),
-        }
+                errors = drift.summary(self.estimate[known], self.truth[known])
+                keep = ("ate_sim3", "path_length") if scale == "none" else tuple(k for k in errors if k != "frames")
+                figures |= {k: errors[k] for k in keep} | {"frames_with_truth": int(known.sum())}
+        if len(self.track_errors):
+            figures["track_error_px"] = _median(self.track_errors)
+        if len(self.pair_errors):
+            figures["pair_error_px"] = _median(self.pair_errors)
+        return figures
 
 
 def _median(values: np.ndarray) -> float:
@@ -158,7 +172,7 @@ def run_frames(
     noise), handing each (frame, result, diagnostics) to ``sink`` as soon as it is done (Ctrl-C and
     SIGTERM take effect between frames). ``RunOutput.pipeline.trajectory()`` has the final smoothed
     trajectory."""
-    truth, online, diagnostics, errors, pair_errors = [], [], [], [], []
+    truth, online, diagnostics, errors, pair_errors, frame_ms = [], [], [], [], [], []
     previous: tuple[TrueFrame, Tracks] | None = None
     kept: dict[int, tuple[TrueFrame, Tracks]] = {}  # the frames a later pose may be measured against
     pipeline = None
@@ -172,6 +186,7 @@ def run_frames(
             pair_errors.append(frame_pair_errors)
             truth.append(frame.T_world_cam)
             online.append(result.T_world_cam)
+            frame_ms.append(sum(result.timings_ms.values()))
             if sink is not None:
                 sink(frame, result, diagnostics[-1])
             previous = (replace(frame, image=None, landmarks=None), result.tracks)  # what the next frame needs
@@ -191,6 +206,7 @@ def run_frames(
         np.concatenate(errors),
         np.concatenate(pair_errors),
         pipeline,
+        np.array(frame_ms),
     )
 
 
@@ -204,8 +220,8 @@ def simulate(
 ) -> dict:
     """Run one simulated trajectory end to end (logged to ``out`` if given).
 
-    Returns {"estimate", "truth", "drift", "scale", "pipeline", "world", "diagnostics"}; the drift figures say
-    which scale was used.
+    Returns {"estimate", "truth", "summary" (``RunOutput.summary``), "smoothed_ate_se3", "scale", "pipeline",
+    "world", "diagnostics"}.
     """
     if out is not None:
         from deepslam.logs.writer import check_output
@@ -230,7 +246,7 @@ def simulate(
     return {
         "estimate": output.estimate,
         "truth": output.truth,
-        "drift": output.summary(),
+        "summary": output.summary(),
         "smoothed_ate_se3": drift.ate_rmse(output.pipeline.trajectory(), output.truth),
         "scale": odometry_config.scale,
         "pipeline": output.pipeline,
@@ -277,7 +293,7 @@ def replay(
         "estimate": output.estimate,
         "truth": output.truth,
         "scale": odometry_config.scale,
-        "drift": output.summary(odometry_config.scale) if output.truth is not None else None,
+        "summary": output.summary(odometry_config.scale),
         "diagnostics": output.diagnostics,
     }
 
@@ -323,8 +339,8 @@ def run_logged(
     progress: bool = True,
     seed: int = 0,
 ) -> RunOutput:
-    """``run_frames`` writing every frame to an MCAP log at ``out`` as it is processed. The log is
-    finished cleanly on Ctrl-C (and then the interruption propagates)."""
+    """``run_frames`` writing every frame to an MCAP log at ``out`` as it is processed, and the run's
+    summary when it ends. The log is finished cleanly on Ctrl-C (and then the interruption propagates)."""
     from deepslam.logs.writer import LogWriter
 
     stamps: list[int] = []
@@ -334,4 +350,6 @@ def run_logged(
             stamps.append(frame.stamp_ns)
             log.write(to_log_frame(frame, result, stamps[result.reference], diagnostics))
 
-        return run_frames(frames, config, sink, total, progress, seed=seed)
+        output = run_frames(frames, config, sink, total, progress, seed=seed)
+        log.add_summary(output.summary(config.odometry.scale, timing=False))  # the same seed, the same bytes
+        return output

@@ -44,7 +44,7 @@ def run_cell(piece: tuple) -> dict:
         progress=False,
     )
     built = result["world"]
-    figures = result["drift"]
+    figures = result["summary"]
     return {
         "seed": seed,
         "texture": built.texture,
