@@ -37,8 +37,9 @@ class SourceOptions:
     calibration: str | None = field(
         default=None,
         metadata={
-            "help": "YAML with fx, fy, cx, cy and optionally distortion (a list), model (plumb_bob or equidistant), "
-            "width and height: the camera's calibration where the input carries none (it wins over the input's)",
+            "help": "YAML with fx, fy, cx, cy and optionally distortion (a list), model (plumb_bob = radtan, or "
+            "equidistant = fisheye), width and height (examples/calibration.yaml): the camera where the input "
+            "carries none (it wins over the input's; not for deepslam logs)",
             "metavar": "FILE",
         },
     )
