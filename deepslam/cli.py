@@ -434,7 +434,10 @@ def _bench_commands(commands) -> None:
     ):
         sub = _command(targets, target, text, _bench)
         sub.add_argument(
-            "--repeats", type=number_type(int, 1), default=BENCH_REPEATS, help="timed repetitions (median reported)"
+            "--repeats",
+            type=number_type(int, 1, 100_000),
+            default=BENCH_REPEATS,
+            help="timed repetitions (median reported) (at most 100000)",
         )
         sub.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
     pipeline = _command(

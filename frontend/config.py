@@ -202,16 +202,20 @@ class MagicWarpConfig:
             "help": "encoder widths, --blocks VGG blocks per 2x2 max-pool (a new run only: a resumed run keeps "
             "its checkpoint's shape)",
             "min": 1,
+            "max": 4096,
         },
     )
     pooled: tuple[int, int] = (3, 5)
-    hidden: int = field(default=512, metadata={"help": "width of the hidden fully connected layer", "min": 1})
+    hidden: int = field(
+        default=512, metadata={"help": "width of the hidden fully connected layer", "min": 1, "max": 8192}
+    )
     blocks: int = field(
         default=2,
         metadata={
             "help": "VGG blocks per stage of the encoder; with --init, weights of fewer blocks per stage are "
             "deepened: the new blocks start as identities",
             "min": 1,
+            "max": 8,
         },
     )
 

@@ -52,10 +52,14 @@ class AdaptConfig(LoopConfig):
 
     iterations: int = 4000
     lr: float = 2e-4
-    rounds: int = field(default=2, metadata={"help": "rounds of labelling and training", "min": 1})
-    views: int = field(default=2000, metadata={"help": "labelled random views of the photographs per round", "min": 1})
+    rounds: int = field(default=2, metadata={"help": "rounds of labelling and training", "min": 1, "max": 100})
+    views: int = field(
+        default=2000,
+        metadata={"help": "labelled random views of the photographs per round", "min": 1, "max": 1_000_000},
+    )
     warps: int = field(
-        default=64, metadata={"help": "homographic warps per view (the identity included; SuperPoint: 100)", "min": 1}
+        default=64,
+        metadata={"help": "homographic warps per view (the identity included; SuperPoint: 100)", "min": 1, "max": 1000},
     )
     label_warp: tuple[float, float, float, float] = (0.1, 0.35, 0.2, 0.1)  # translation, rotation, zoom, jitter
     train_warp: tuple[float, float, float, float] = (0.05, 0.2, 0.15, 0.05)  # each view warped again in training
@@ -78,6 +82,7 @@ class AdaptConfig(LoopConfig):
             "help": "the labelling detector sees each view enlarged this many times (its warps averaged at that "
             "resolution, labels brought back to the view's pixels)",
             "min": 1,
+            "max": 4,
         },
     )
     synthetic_share: float = field(
@@ -102,11 +107,16 @@ class AdaptConfig(LoopConfig):
             "help": "the trained detector's encoder widths (default S's); wider than the labelling detector's, it "
             "starts from that detector's function (its weights embedded)",
             "min": 1,
+            "max": 1024,
         },
     )
     head: int = field(
         default=VARIANTS["S-HA"].head,
-        metadata={"help": "width of the trained detector's 3x3 layer before its 65-channel head", "min": 1},
+        metadata={
+            "help": "width of the trained detector's 3x3 layer before its 65-channel head",
+            "min": 1,
+            "max": 4096,
+        },
     )
     pool: Literal["max", "blur"] = field(
         default=VARIANTS["S-HA"].pool,

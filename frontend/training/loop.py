@@ -38,12 +38,12 @@ log = logging.getLogger(__name__)
 class LoopConfig:
     """Options of the training loop itself; each network's ``TrainConfig`` extends it."""
 
-    iterations: int = field(default=1000, metadata={"help": "total optimisation steps", "min": 1})
-    batch: int = field(default=32, metadata={"help": "examples per step", "min": 1})
+    iterations: int = field(default=1000, metadata={"help": "total optimisation steps", "min": 1, "max": 10_000_000})
+    batch: int = field(default=32, metadata={"help": "examples per step", "min": 1, "max": 4096})
     lr: float = field(default=1e-3, metadata={"help": "Adam learning rate", "min": 1e-12})
     seed: int = field(default=0, metadata={"help": "seed of the data stream and initialisation", "min": 0})
     validate_every: int = field(default=500, metadata={"help": "steps between validations/checkpoints", "min": 1})
-    threads: int = field(default=1, metadata={"help": "torch CPU threads", "min": 1})
+    threads: int = field(default=1, metadata={"help": "torch CPU threads", "min": 1, "max": 256})
     ema: float = field(
         default=0.0,
         metadata={

@@ -24,7 +24,11 @@ class TrainConfig(LoopConfig):
     iterations: int = 8000
     validation_per_category: int = field(
         default=20,
-        metadata={"help": "validation images per Synthetic Shapes category (each clean and noisy)", "min": 1},
+        metadata={
+            "help": "validation images per Synthetic Shapes category (each clean and noisy)",
+            "min": 1,
+            "max": 10_000,
+        },
     )
     clean_share: float = field(
         default=0.0,
