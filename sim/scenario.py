@@ -24,7 +24,10 @@ MAX_SIDE = 2048  # the largest image side (px) the pipeline runs at
 class ScenarioConfig:
     """A simulated run; every documented field is a ``deepslam run`` option."""
 
-    world: WorldName = field(default="plane", metadata={"help": "simulated world: one textured wall, or a room"})
+    world: WorldName = field(
+        default="plane",
+        metadata={"help": "simulated world: one textured wall, a room, or boxes at many depths (clutter)"},
+    )
     trajectory: trajectories.Kind = field(default="circle", metadata={"help": "camera path"})
     frames: int = field(default=60, metadata={"help": "number of frames", "min": 2, "max": MAX_FRAMES})
     size: tuple[int, int] = field(
@@ -113,6 +116,8 @@ class Scenario:
 
     def plane_distance(self) -> float:
         """Distance of the first camera to the world's dominant plane (the known height for scale)."""
+        if self.world.dominant_plane is None:
+            raise InputError(f"the {self.world.name} world has no dominant plane: use --scale gt or none")
         normal, offset = self.world.dominant_plane
         return float(abs(offset - normal @ self.trajectory.poses[0][:3, 3]))
 

@@ -12,7 +12,7 @@ from deepslam.errors import InputError
 from deepslam.geometry import path_length
 from deepslam.sim.camera import look_at, pose
 
-Kind = Literal["circle", "figure8", "line", "random"]
+Kind = Literal["circle", "figure8", "line", "random", "forward"]
 KINDS: tuple[str, ...] = get_args(Kind)
 
 
@@ -62,7 +62,8 @@ def make(
     """A trajectory of ``kind`` (one of ``KINDS``) with ``frames`` frames at ``fps``.
 
     ``speed`` is in world units per second. circle/figure8 orbit ``target`` at about ``radius``
-    looking at it; line moves sideways in front of it; random is a ``random_walk`` looking forward.
+    looking at it; line moves sideways in front of it; forward moves towards it, swaying gently from side to
+    side and up and down, looking ahead; random is a ``random_walk`` looking forward.
     """
     if kind not in KINDS:
         raise InputError(f"unknown trajectory {kind!r}; expected one of {', '.join(KINDS)}")
@@ -80,6 +81,10 @@ def make(
         return Trajectory(np.einsum("ij,njk->nik", start, walk), stamps)
     if kind == "line":
         eyes = np.stack([distance - distance[-1] / 2, np.full(frames, -radius), np.full(frames, height)], 1) + target
+        looks = eyes + np.array([0.0, radius, 0.0])
+    elif kind == "forward":
+        sway = distance / (0.3 * radius)  # a sideways sway every ~4 m, half as much up and down
+        eyes = target + np.stack([0.2 * np.sin(sway), distance - radius, height + 0.1 * np.sin(2 * sway)], 1)
         looks = eyes + np.array([0.0, radius, 0.0])
     else:
         orbit = 0.3 * radius  # the camera circles in a plane facing the target, looking near it

@@ -23,7 +23,8 @@ from deepslam.sim.photos import WORLD_TEXTURES
 from deepslam.sim.shapes import CATEGORIES, render
 
 CORNER_POOR = ("grass", "gravel")  # textures without corners: natural surfaces a front-end must still cope with
-WorldName = Literal["plane", "room"]
+WorldName = Literal["plane", "room", "clutter"]
+CLUTTER_BOXES = 14  # boxes of the cluttered world, 0.5-6 m in front of its first camera
 WORLDS: tuple[str, ...] = get_args(WorldName)
 _PHOTOS = WORLD_TEXTURES
 
@@ -190,13 +191,35 @@ def _landmarks(surfaces: list[Surface], rng: np.random.Generator, density: float
     return np.vstack(points)
 
 
+def _clutter(rng: np.random.Generator) -> list[Surface]:
+    """A far wall, a floor and ``CLUTTER_BOXES`` boxes of many sizes at many depths, no side walls (open
+    space left and right), a corridor along x = 0 kept clear for a camera moving forward."""
+    surfaces = [
+        _rectangle((0, 6.0, 0.8), (8, 0, 0), (0, 0, -4.0), rng),  # far wall, 8 m from the first camera
+        _rectangle((0, 1.5, -1.2), (8, 0, 0), (0, 9, 0), rng),  # floor
+    ]
+    placed = 0
+    while placed < CLUTTER_BOXES:
+        size = rng.uniform([0.3, 0.3, 0.3], [1.0, 1.0, 1.6])
+        x, y = rng.uniform(-3.0, 3.0), rng.uniform(-1.5, 5.0)
+        if abs(x) < 0.6 + size[0] / 2 and y < 2.5:  # the corridor of the forward path
+            continue
+        surfaces += _box((x, y, -1.2 + size[2] / 2), size, rng)
+        placed += 1
+    return surfaces
+
+
 def make(name: str, seed: int = 0, landmark_density: float = 150.0) -> World:
-    """A world by name: "plane" (one textured wall at y = 0 facing -y: the homography case) or
-    "room" (back wall, side walls, floor and boxes at different depths: the non-planar case).
+    """A world by name: "plane" (one textured wall at y = 0 facing -y: the homography case), "room" (back
+    wall, side walls, floor and boxes at different depths: a dominant back wall) or "clutter" (boxes at
+    0.5-6 m before a far wall and over a floor, open at the sides: no dominant plane).
     Cameras of ``sim.trajectories`` look at ``target`` from about y = -2."""
     if name not in WORLDS:
         raise InputError(f"unknown world {name!r}; expected one of {', '.join(WORLDS)}")
     rng = np.random.default_rng(seed)
+    if name == "clutter":
+        surfaces = _clutter(rng)
+        return World(name, surfaces, _landmarks(surfaces, rng, landmark_density), np.array([0.0, 2.0, -0.3]))
     if name == "plane":
         surfaces = [_rectangle((0, 0, 0), (6, 0, 0), (0, 0, -4.5), rng)]
         return World(

@@ -229,3 +229,19 @@ def test_world_render_samples_textures_by_ray_casting_with_occlusion():
     assert np.all(frame.image[~on_far & ~on_near] == 0) and np.all(np.isinf(frame.depth[~on_far & ~on_near]))
     assert frame.landmark_ids.tolist() == [0]
     np.testing.assert_allclose(frame.landmark_pixels, [[79.5 - 20, 59.5]])
+
+
+def test_the_cluttered_world_has_depth_and_no_dominant_plane_and_the_forward_path_moves_into_it():
+    from deepslam.errors import InputError
+    from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="forward", frames=20))
+    frames = list(scenario)
+    depth = frames[0].depth[np.isfinite(frames[0].depth)]
+    assert np.percentile(depth, 5) < 2.5 and np.percentile(depth, 95) > 5  # near boxes and the far wall at once
+    assert all(len(f.landmark_ids) > 100 for f in frames)
+    ahead = scenario.trajectory.poses[-1][:3, 3] - scenario.trajectory.poses[0][:3, 3]
+    looking = scenario.trajectory.poses[0][:3, 2]  # the camera's z axis: where it looks
+    assert ahead @ looking > 0.9 * np.linalg.norm(ahead)  # it moves the way it looks
+    with pytest.raises(InputError, match="no dominant plane"):
+        scenario.plane_distance()
