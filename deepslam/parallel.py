@@ -84,16 +84,15 @@ def parallel_map(
     return results
 
 
-def _stop(pool: ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
-    """Cancel what has not started and end the worker processes (SIGTERM, then SIGKILL after ``timeout_s``)."""
+def _stop(pool: ProcessPoolExecutor, timeout_s: float = 1.0) -> None:
+    """Cancel what has not started and end the worker processes now: their pieces write no files, and a
+    worker that caught the signal inside a piece would only go on to wait for the next one."""
     processes = list(getattr(pool, "_processes", {}).values())  # the executor offers no public handle on them
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
-        process.terminate()
+        process.kill()
     for process in processes:
         process.join(timeout_s)
-        if process.is_alive():
-            process.kill()
 
 
 def _run(fn, item, describe):
