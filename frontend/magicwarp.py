@@ -154,7 +154,7 @@ class MagicWarp:
             checkpoint()  # Ctrl-C and SIGTERM take effect between iterations
             H = self.estimate_batch([(warp_points(points_a, H), points_b)], image_size)[0] @ H
             H /= H[2, 2]
-        supported = support(points_a, points_b, H)
+        supported = support(points_a, points_b, H) if min_support > 0 else 1.0  # the tracker asks none: no k-d tree
         if supported < min_support:
             raise DegeneratePoints(
                 f"the point sets do not overlap under MagicWarp's homography: {supported:.0%} of the points lie "
