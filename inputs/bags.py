@@ -44,7 +44,7 @@ class RosBag:
         )
         self.stamps, native = self._scan_images()
         self.calibration = self._calibration(native)
-        self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
+        self.rectify = Rectifier(self.calibration, pipeline_size(options.size))
         self.truth = self._truth()
 
     def _topic(self, wanted: str | None, types: tuple[str, ...], topics: dict, what: str, required: bool) -> str | None:

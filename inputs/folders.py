@@ -57,7 +57,7 @@ class TumFolder(_ImageFolder):
         if options.calibration is None:
             raise SourceError(f"{root}: a TUM folder carries no calibration; give --calibration FILE")
         self.calibration = Calibration.from_yaml(options.calibration, native)
-        self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
+        self.rectify = Rectifier(self.calibration, pipeline_size(options.size))
 
 
 def _tum_truth(path: Path) -> tuple[list[int], list[np.ndarray]]:
@@ -106,7 +106,7 @@ class EurocFolder(_ImageFolder):
         T_BS = _body_to_sensor(sensor, camera / "sensor.yaml")
         truth = _euroc_truth(base / "state_groundtruth_estimate0" / "data.csv")
         self.truth = {i: T @ T_BS for i, T in _associated(self.stamps, truth).items()}
-        self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
+        self.rectify = Rectifier(self.calibration, pipeline_size(options.size))
 
 
 def _euroc_truth(path: Path) -> tuple[list[int], list[np.ndarray]]:

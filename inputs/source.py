@@ -84,12 +84,9 @@ class Source(Protocol):
     def frames(self) -> Iterator[SourceFrame]: ...
 
 
-def pipeline_size(size: tuple[int, int] | None, native: tuple[int, int]) -> tuple[int, int]:
-    """The (H, W) the pipeline runs an input of ``native`` size at: ``size``, or ``DEFAULT_SIZE``."""
-    chosen = size or DEFAULT_SIZE
-    if chosen[0] % 8 or chosen[1] % 8:
-        raise SourceError(f"--size {chosen[0]} {chosen[1]}: height and width must be multiples of 8")
-    return chosen
+def pipeline_size(size: tuple[int, int] | None) -> tuple[int, int]:
+    """The (H, W) the pipeline runs an input at: ``size`` (checked by ``SourceOptions``), or ``DEFAULT_SIZE``."""
+    return size or DEFAULT_SIZE
 
 
 def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> Source:

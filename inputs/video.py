@@ -36,7 +36,7 @@ class VideoFile:
         if options.calibration is None:
             raise SourceError(f"{path}: a video carries no calibration; give --calibration FILE")
         self.calibration = Calibration.from_yaml(options.calibration, native)
-        self.rectify = Rectifier(self.calibration, pipeline_size(options.size, native))
+        self.rectify = Rectifier(self.calibration, pipeline_size(options.size))
         self.count = sum(1 for _ in self._images())  # decoded once before any work: the length, and no surprise
 
     def _open(self) -> cv2.VideoCapture:
