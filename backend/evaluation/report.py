@@ -14,6 +14,7 @@ import io
 import json
 import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -40,6 +41,7 @@ class Run:
     def label(self) -> str:
         return self.path.stem
 
+    @cached_property
     def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(seconds (N,), truth (N, 4, 4), estimate (N, 4, 4)) of the frames with both, or None."""
         both = [f for f in self.frames if f.T_groundtruth is not None and f.T_estimate is not None]
@@ -48,6 +50,7 @@ class Run:
         seconds = np.array([(f.stamp_ns - both[0].stamp_ns) / 1e9 for f in both])
         return seconds, np.stack([f.T_groundtruth for f in both]), np.stack([f.T_estimate for f in both])
 
+    @cached_property
     def estimates(self) -> np.ndarray | None:
         """The estimated poses (N, 4, 4) of the frames that have one, or None for fewer than two."""
         poses = [f.T_estimate for f in self.frames if f.T_estimate is not None]
@@ -65,7 +68,7 @@ def load_run(path: Path) -> Run:
     except LogError as error:
         metadata, notes = {}, [*notes, str(error)]
     run = Run(path, frames, metadata, notes)
-    if run.poses() is None:
+    if run.poses is None:
         run.notes.append("no ground truth (/groundtruth/pose): drift figures are not available; the estimate is drawn")
     if not any(f.diagnostics for f in frames):
         run.notes.append("no per-frame diagnostics (/diagnostics/frame): written by deepslam 0.2.0 and later")
@@ -90,8 +93,8 @@ def trajectory_figures(runs: list[Run]) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    with_truth = [(run, run.poses()) for run in runs if run.poses() is not None]
-    estimates = [(run, run.estimates()) for run in runs if run.poses() is None and run.estimates() is not None]
+    with_truth = [(run, run.poses) for run in runs if run.poses is not None]
+    estimates = [(run, run.estimates) for run in runs if run.poses is None and run.estimates is not None]
     if not with_truth and not estimates:
         return "<p>No run has estimated poses: no trajectory plots.</p>"
     fig, axes = plt.subplots(1, 3 if with_truth else 1, figsize=(15 if with_truth else 5.5, 4.2), squeeze=False)
@@ -177,7 +180,7 @@ def _drift_table(runs: list[Run]) -> str:
     ]  # fmt: skip
     rows = []
     for run in runs:
-        poses, diagnostics = run.poses(), [f.diagnostics for f in run.frames if f.diagnostics is not None]
+        poses, diagnostics = run.poses, [f.diagnostics for f in run.frames if f.diagnostics is not None]
         figures = drift.summary(poses[2], poses[1]) if poses is not None else None
         cells = [
             run.label, str(run.metadata.get("frontend", "?")), str(len(run.frames)),
