@@ -97,14 +97,13 @@ class RunOutput:
         frame and milliseconds a frame; then the drift over the frames with ground truth (with "none", only
         what survives a Sim(3) alignment) and the median track and pair errors against the simulator, where
         they can be measured. ``timing`` False leaves out the milliseconds (they differ from run to run)."""
-        measured = [d for d in self.diagnostics[1:]]  # the first frame has no pose to measure
         figures: dict = {
             "frames": len(self.estimate),
             "keyframes": sum(d.keyframe for d in self.diagnostics),
             "lost_frames": sum(d.lost for d in self.diagnostics),
             "path_length_estimate": path_length(self.estimate),
             "tracks_per_frame": _median(np.array([d.tracks for d in self.diagnostics], float)),
-            "inliers_per_frame": _median(np.array([d.inliers for d in measured], float)),
+            "inliers_per_frame": _median(np.array([d.inliers for d in self.diagnostics[1:]], float)),  # 0: no pose
         }
         if timing:
             figures["ms_per_frame"] = _median(self.frame_ms)
