@@ -118,8 +118,7 @@ class LogWriter:
         self._schemas = {
             topic: self._writer.register_msgdef(ros2_name(kind), msgdef(kind)) for topic, kind in TOPICS.items()
         }
-        entries = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
-        self._writer.add_metadata("deepslam", entries | {METADATA_CHECKSUM: metadata_checksum(entries)})
+        self._add_metadata("deepslam", metadata)
         self.frames = 0
         self._first_seen: dict[int, int] = {}  # track id -> the frame it was first logged in (live tracks only)
         self._paths: dict[str, list[tuple[int, np.ndarray]]] = {"/estimate/path": [], "/groundtruth/path": []}
@@ -174,8 +173,12 @@ class LogWriter:
     def add_summary(self, figures: dict) -> None:
         """The run's figures (``RunOutput.summary``) as the metadata record "deepslam_summary", checksummed
         like the run's settings (``read_metadata(path, "deepslam_summary")`` reads it)."""
-        entries = {k: json.dumps(v) for k, v in figures.items()}
-        self._writer.add_metadata(SUMMARY_RECORD, entries | {METADATA_CHECKSUM: metadata_checksum(entries)})
+        self._add_metadata(SUMMARY_RECORD, figures)
+
+    def _add_metadata(self, name: str, values: dict) -> None:
+        """A metadata record: text as it is, other values as JSON, and a checksum over them."""
+        entries = {k: v if isinstance(v, str) else json.dumps(v) for k, v in values.items()}
+        self._writer.add_metadata(name, entries | {METADATA_CHECKSUM: metadata_checksum(entries)})
 
     def _annotations(self, stamp_ns: int, tracks: np.ndarray) -> dict:
         """Foxglove ``ImageAnnotations`` of one frame's tracks: a dot per point coloured by the track's age
