@@ -248,7 +248,14 @@ def test_sigterm_stops_a_parallel_sweep_and_its_workers_within_seconds(tmp_path)
     argv = ["eval", "pipeline", "--worlds", "plane", "--trajectories", "circle", "--frontends", "magic",
             "--noise", "0", "--lighting", "0", "--seeds", "4", "--jobs", "2", "-q", "--out", str(marker)]  # fmt: skip
     process = subprocess.Popen([sys.executable, "-m", "deepslam", *argv], stderr=subprocess.PIPE, text=True)
-    time.sleep(8)  # the workers are inside their first runs
+
+    def running() -> int:  # processes of this sweep: the parent and its workers
+        return len(subprocess.run(["pgrep", "-f", str(marker)], capture_output=True).stdout.split())
+
+    deadline = time.time() + 120  # however slow the machine is at the moment
+    while time.time() < deadline and running() < 3:
+        time.sleep(0.2)
+    time.sleep(3)  # the workers are inside their first runs
     process.send_signal(signal.SIGTERM)
     started = time.time()
     assert process.wait(timeout=30) == 143 and time.time() - started < 5
