@@ -24,7 +24,10 @@ from deepslam.errors import InputError
 from deepslam.geometry import vector_angle
 
 STATIC_FLOW_PX = 0.3  # a median flow below this (px): no motion
-MIN_INLIER_RATIO = 0.3  # a model that explains a smaller share of the matches is not trusted
+MIN_INLIER_RATIO = 0.3  # a model that explains a smaller share of the matches is not trusted ...
+MIN_INLIERS = 10  # ... nor one that explains fewer pairs than this (8 determine E and H exactly; noise needs more)
+AMBIGUOUS_DEG = 30.0  # a homography's and an essential matrix's translations this far apart ...
+AMBIGUOUS_SHARE = 0.1  # ... while E explains as many pairs (within this share): plane or not, the pairs cannot tell
 MIN_SPREAD_PX = 2.0  # matched points whose second principal spread is below this (px) are collinear
 ROTATION_ONLY_PX = 0.5  # E: if K R K^-1 alone maps p1 onto p2 this closely (median px), translation is unobservable
 CHI2_1DOF_95 = 3.84  # chi-square 95% quantiles: one degree of freedom (point-to-line) ...
@@ -45,7 +48,8 @@ VISIBLE_SHARE = 0.9  # a decomposition is valid if this share of its plane's poi
 @dataclass
 class RelativePose:
     """T_c1_c2 (4, 4) with |t| = 1 (or t/d for a homography); ``model`` is "homography", "essential",
-    "static" (no motion), or "failed" (then T is the identity); ``inliers`` (N,) bool;
+    "static" (no motion), "pnp" (located in a map: T metric, the odometry's), or "failed" (then T is the
+    identity); ``inliers`` (N,) bool;
     ``plane_normal`` n (n . X_1 = d on the plane) and ``t_over_d`` |t| / d of the homography (also
     filled from the dominant plane for essential poses when metric scale comes from it);
     ``reason`` explains failures and degenerate cases."""
@@ -60,7 +64,7 @@ class RelativePose:
 
     @property
     def ok(self) -> bool:
-        return self.model in ("homography", "essential", "static")
+        return self.model in ("homography", "essential", "static", "pnp")
 
     @property
     def inlier_ratio(self) -> float:
@@ -360,9 +364,11 @@ def estimate(
     """Relative pose of camera 2 in camera 1 from matched pixels.
 
     Degenerate cases never raise, they give model "failed" with a ``reason``: a singular K, non-finite
-    points, fewer than ``MIN_MATCHES`` distinct matches, collinear points (``MIN_SPREAD_PX``), or a model
-    that explains less than ``MIN_INLIER_RATIO`` of the matches. A median flow below ``STATIC_FLOW_PX``
-    gives "static" (identity); pure rotation is flagged ``rotation_only`` (no translation).
+    points, fewer than ``MIN_MATCHES`` distinct matches, collinear points (``MIN_SPREAD_PX``), a model
+    that explains less than ``MIN_INLIER_RATIO`` of the matches or fewer than ``MIN_INLIERS`` of them, or, with
+    "auto", pairs that a homography and an essential matrix explain alike with motions ``AMBIGUOUS_DEG`` apart
+    where ``previous_t`` does not tell which (``_unambiguous``: the scene may not be a plane). A median flow below
+    ``STATIC_FLOW_PX`` gives "static" (identity); pure rotation is flagged ``rotation_only`` (no translation).
 
     Args:
         p1, p2: (N, 2) pixels of the same points in cameras 1 and 2.
@@ -405,6 +411,8 @@ def estimate(
     if pose.ok and pose.inlier_ratio < MIN_INLIER_RATIO:
         return _failed(len(p1), f"the {pose.model} explains {pose.inlier_ratio:.0%} of the matches, "
                                 f"below {MIN_INLIER_RATIO:.0%}")  # fmt: skip
+    if pose.ok and pose.model != "static" and pose.inliers.sum() < MIN_INLIERS:
+        return _failed(len(p1), f"the {pose.model} explains {pose.inliers.sum()} pairs, fewer than {MIN_INLIERS}")
     return pose
 
 
@@ -446,12 +454,40 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
         return general if general is not None else essential_pose(p1, p2, K)
     if planar.rotation_only:
         return planar
-    off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
-    if off_plane.sum() < OFF_PLANE_MARGIN:  # too few pairs off the plane to contradict it: spare fitting E
-        return planar
     if general is None:  # the scores chose H: E only to check it
         general = essential_pose(p1, p2, K, fits=QUICK_FITS)
-    return general if _contradicted(planar, general, off_plane, p1, p2, K) else planar
+    off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
+    if _contradicted(planar, general, off_plane, p1, p2, K):
+        return general
+    return _unambiguous(planar, general, previous_t, previous_normal)
+
+
+def _unambiguous(
+    planar: RelativePose, general: RelativePose, previous_t: np.ndarray | None, previous_normal: np.ndarray | None
+) -> RelativePose:
+    """The homography's pose ``planar`` unless it and the essential matrix's ``general`` move the camera
+    ``AMBIGUOUS_DEG`` apart while E explains as many pairs (within ``AMBIGUOUS_SHARE`` of them) and the plane is
+    not the one seen before (``previous_normal``, within ``SAME_PLANE_DEG``): then nothing shows the scene is a
+    plane (off a plane a homography still fits pairs of little parallax, its decomposition degrees off and its
+    translation often reversed) and the motion so far, ``previous_t`` (3,), decides: the
+    homography's pose if it is within ``AMBIGUOUS_DEG`` of it, else E's if that one is; else a failed pose that
+    says the pairs cannot tell."""
+    if not general.ok or general.rotation_only or planar.inlier_ratio < MIN_INLIER_RATIO:
+        return planar  # (too little support fails the homography anyway, with that reason)
+    apart = float(np.degrees(vector_angle(planar.T_c1_c2[:3, 3], general.T_c1_c2[:3, 3])))
+    if apart <= AMBIGUOUS_DEG or general.inliers.sum() < planar.inliers.sum() - AMBIGUOUS_SHARE * len(planar.inliers):
+        return planar
+    if previous_normal is not None and np.degrees(vector_angle(planar.plane_normal, previous_normal)) <= SAME_PLANE_DEG:
+        return planar  # a plane that lasts from frame to frame
+    if previous_t is not None and np.linalg.norm(previous_t) > 0:
+        for pose in (planar, general):  # the plane first: where both go along, a homography fits for a reason
+            if np.degrees(vector_angle(pose.T_c1_c2[:3, 3], previous_t)) <= AMBIGUOUS_DEG:
+                return pose
+    return _failed(
+        len(planar.inliers),
+        f"ambiguous: the homography's and the essential matrix's translations are {apart:.0f} deg apart and "
+        "both explain the pairs",
+    )
 
 
 def _contradicted(

@@ -280,8 +280,8 @@ def test_planar_world_with_oracle_recovers_the_trajectory():
     def keep_model(frame, result, diagnostics):
         models.append(result.relative.model if result.relative else None)
 
-    output = run_frames(
-        simulated_frames(scenario), PipelineConfig(ORACLE_EXACT, OdometryConfig()), keep_model, progress=False
+    output = run_frames(  # two-view poses only: true step lengths
+        simulated_frames(scenario), PipelineConfig(ORACLE_EXACT, OdometryConfig(scale="gt")), keep_model, progress=False
     )
     assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
     assert models[0] is None and set(models[1:]) == {"homography"}  # "auto" sees the plane in every pair
@@ -328,7 +328,9 @@ def test_lost_frames_are_flagged_and_tracking_reinitialises():
     assert not output.diagnostics[-1].lost  # tracking picked up again after re-initialising
 
 
-@pytest.mark.parametrize("config, kept", [(OdometryConfig(), True), (OdometryConfig(max_rotation_jump=0), False)])
+@pytest.mark.parametrize(
+    "config, kept", [(OdometryConfig(scale="gt"), True), (OdometryConfig(scale="gt", max_rotation_jump=0), False)]
+)
 def test_a_pose_that_turns_away_from_the_frame_before_gives_way_to_a_model_that_does_not(monkeypatch, config, kept):
     real, wrong_frames = relpose.estimate, {12}
     turned = pose(np.array([0.0, np.radians(20), 0.0]), np.zeros(3))
@@ -428,7 +430,8 @@ def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
     truth = GroundTruth()
     keyframes, choosy = 0, Choosy(truth.landmarks, noise_px=0.0)
     frames = simulated_frames(scenario)
-    for pipeline, _, result in run_pipeline(frames, PipelineConfig(odometry=OdometryConfig()), choosy, truth=truth):
+    two_view = PipelineConfig(odometry=OdometryConfig(scale="gt"))  # measured from pairs with the keyframe
+    for pipeline, _, result in run_pipeline(frames, two_view, choosy, truth=truth):
         odometry = pipeline.odometry
         if result.index:
             shared = np.intersect1d(odometry.history[result.reference][1].ids, result.tracks.ids)
@@ -451,3 +454,32 @@ def test_pipeline_bench_reports_the_median_round_and_the_spread_of_rounds():
     assert timings["odometry.graph"] > 0 and "memory_mb@end" not in timings  # short runs report no growth
     with pytest.raises(ValueError, match="at least 1 round"):
         bench_pipeline(6, rounds=0)
+
+
+def test_auto_flags_pairs_a_homography_and_an_essential_matrix_explain_with_different_motions():
+    flagged = wrong_ok = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        X = np.c_[rng.uniform(-1.5, 1.5, (100, 2)), rng.uniform(3, 6, 100)]  # no dominant plane
+        direction = rng.normal(size=3)
+        T = pose(np.radians(rng.uniform(-3, 3, 3)), 0.2 * direction / np.linalg.norm(direction))
+        p1 = _project(np.eye(4), X) + rng.normal(0, 0.3, (100, 2))
+        p2 = _project(T, X) + rng.normal(0, 0.3, (100, 2))
+        result = relpose.estimate(p1, p2, K, "auto")
+        flagged += "ambiguous" in result.reason
+        wrong_ok += result.ok and np.degrees(vector_angle(result.T_c1_c2[:3, 3], T[:3, 3])) > 30
+    assert flagged >= 2 and wrong_ok <= 3, (flagged, wrong_ok)
+
+
+def test_a_pose_from_fewer_pairs_than_the_minimum_is_not_trusted(rng):
+    X = np.c_[rng.uniform(-1, 1, (relpose.MIN_INLIERS - 1, 2)), rng.uniform(3, 6, relpose.MIN_INLIERS - 1)]
+    T = pose(np.zeros(3), np.array([0.3, 0.0, 0.0]))
+    p1, p2 = _project(np.eye(4), X), _project(T, X)
+    for method in ("essential", "homography", "auto"):
+        result = relpose.estimate(p1, p2, K, method)
+        assert not result.ok and "fewer than" in result.reason, (method, result.reason)
+
+
+def _project(T_world_cam, X):
+    """Pixels (N, 2) of world points X (N, 3) seen from ``T_world_cam`` (4, 4) with the tests' K."""
+    return project(transform(invert(T_world_cam), X), K)[0]
