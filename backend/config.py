@@ -12,7 +12,7 @@ from deepslam.frontend.config import TrackerConfig
 Method = Literal["auto", "homography", "essential", "pycolmap"]
 METHODS: tuple[str, ...] = get_args(Method)
 MIN_MATCHES = 8  # fewer matches than this: no relative pose
-Scale = Literal["gt", "plane", "none"]
+Scale = Literal["map", "gt", "plane", "none"]
 SCALES: tuple[str, ...] = get_args(Scale)
 MAX_TURN_OF_TRANSLATION = 60.0  # degrees a fallback's translation may lie from the motion so far
 
@@ -23,6 +23,41 @@ class GraphConfig:
     huber_k: float = 1.345
     relinearize_threshold: float = 0.001
     window: int | None = 50  # frames a pose stays after it was last used; None: never marginalised
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """The local map of ``scale="map"`` (``deepslam.backend.mapping``): triangulation, PnP, bundle adjustment."""
+
+    window: int = 6  # keyframes the local bundle adjustment optimises (the two oldest held fixed: gauge and scale)
+    min_located: int = 12  # fewer landmarks matched in a frame: no PnP pose (the two-view pose is tried)
+    pnp_px: float = 2.0  # PnP RANSAC's reprojection threshold (px)
+    max_reprojection_px: float = 3.0  # a landmark observation farther than this from its projection is dropped
+    min_triangulation_px: float = (
+        6.0  # rays meeting at a smaller angle (in pixels: radians x focal length) make no landmark
+    )
+    min_initial_landmarks: int = 30  # the map starts once two keyframes triangulate this many landmarks ...
+    min_initial_px: float = 10.0  # ... seen from at least this angle apart (pixels)
+    start_within: int = 20  # frames the first map may take to start: until then lengths come from the scale source
+    coverage: float = (
+        0.7  # a frame locating fewer than this share of what the first frame after its keyframe located ...
+    )
+    min_located_share: float = 0.3  # ... or fewer than this share of its tracks makes a keyframe
+    huber_px: float = 1.345  # the bundle adjustment's robust loss (px, sigma 1 px)
+    iterations: int = 10  # Levenberg-Marquardt iterations a bundle adjustment takes at most
+
+    def __post_init__(self):
+        if self.window < 2 or self.min_located < 6 or self.min_initial_landmarks < self.min_located:
+            raise InputError(
+                f"the map's window must hold at least 2 keyframes, PnP at least 6 landmarks and the first map at "
+                f"least as many, got {self.window}, {self.min_located}, {self.min_initial_landmarks}"
+            )
+        thresholds = (self.pnp_px, self.max_reprojection_px, self.min_triangulation_px, self.min_initial_px)
+        if not (min(thresholds) > 0 and 0 < self.coverage <= 1 and 0 <= self.min_located_share <= 1):
+            raise InputError(
+                f"the map's pixel thresholds must be positive and its coverage in (0, 1], got {thresholds}, "
+                f"{self.coverage}, {self.min_located_share}"
+            )
 
 
 @dataclass(frozen=True)
@@ -38,10 +73,12 @@ class OdometryConfig:
         },
     )
     scale: Scale = field(
-        default="gt",
+        default="map",
         metadata={
-            "help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the dominant plane; "
-            "none = up to scale (the plane's distance taken as 1; drift after Sim(3) alignment only)"
+            "help": "monocular scale: map = a local map of triangulated landmarks carries the scale of its first "
+            "baseline (its true length where the input has truth, else 1); gt = ground-truth step lengths "
+            "(evaluation); plane = known distance to the dominant plane; none = up to scale (the plane's distance "
+            "taken as 1; drift after Sim(3) alignment only)"
         },
     )
     plane_distance: float | None = field(
@@ -66,6 +103,7 @@ class OdometryConfig:
     reinitialise_after: int = 3  # this many lost frames in a row: the current frame becomes the keyframe
     covariance: bool = True  # compute the latest pose's marginal covariance every frame
     graph: GraphConfig = GraphConfig()  # the pose graph's noise and window
+    map: MapConfig = MapConfig()  # the local map of scale "map"
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -87,8 +125,9 @@ class OdometryConfig:
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """The front-end and the odometry. The default measures up to scale (``scale="none"``): a camera of
-    one's own has no ground-truth step lengths."""
+    """The front-end and the odometry. The default scale is the local map's (``scale="map"``), whose unit is the
+    first baseline unless the caller passes its true length: a camera of one's own has no ground-truth step
+    lengths."""
 
     tracker: TrackerConfig = TrackerConfig()
-    odometry: OdometryConfig = field(default_factory=lambda: OdometryConfig(scale="none"))
+    odometry: OdometryConfig = OdometryConfig()

@@ -66,6 +66,22 @@ def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.nda
     return np.linalg.norm(error[:, :3, 3], axis=1), np.degrees(rotation_angle(error[:, :3, :3]))
 
 
+def scale_drift(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """How the estimate's scale moved over the run: its path length over the true one in the last quarter of the
+    frames, divided by the same in the first quarter (lengths between every quarter / 4-th frame); 1: no scale
+    drift; NaN for fewer than 8 frames or a quarter where the camera stood still. ``estimate``, ``truth``:
+    (N, 4, 4) ``T_world_cam`` of the same frames."""
+    quarter = len(truth) // 4
+    if quarter < 2:
+        return float("nan")
+    stride = max(1, quarter // 4)  # lengths over a few frames at a time: frame-to-frame jitter does not add up
+    ratios = []
+    for part in (slice(0, quarter + 1, stride), slice(len(truth) - quarter - 1, None, stride)):
+        true_length = path_length(truth[part])
+        ratios.append(path_length(estimate[part]) / true_length if true_length > 0 else np.nan)
+    return float(ratios[1] / ratios[0]) if ratios[0] > 0 else float("nan")
+
+
 def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str, float]:
     """All drift figures of an estimated trajectory against the truth.
 
@@ -76,7 +92,7 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
     Returns:
         {"ate_se3", "ate_sim3": ATE RMSE (m) after SE(3) and Sim(3) alignment; "rpe_trans", "rpe_rot_deg": RPE
         means (m, degrees); "final_drift_pct": the final position error as % of the true path length (no
-        alignment: both start together); "path_length" (m); "frames"}.
+        alignment: both start together); "scale_drift" (``scale_drift``); "path_length" (m); "frames"}.
     """
     if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
         raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
@@ -93,6 +109,7 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
         "rpe_trans": float(rpe_t.mean()),
         "rpe_rot_deg": float(rpe_r.mean()),
         "final_drift_pct": float(100 * final / length) if length > 0 else float("nan"),
+        "scale_drift": scale_drift(estimate, truth),
         "path_length": length,
         "frames": int(len(truth)),
     }

@@ -14,6 +14,14 @@ truth that the caller passes in as ``step_lengths`` (the usual convention of mon
 ground truth from a known initial distance to the dominant plane (like a known camera height), which
 homography decompositions (t / d) carry from frame to frame; ``scale="none"`` does the same with that
 distance taken as the unit of length: the trajectory up to scale.
+
+``scale="map"`` needs no plane: once two keyframes triangulate enough landmarks (``deepslam.backend.mapping``),
+each frame is located in that local map by PnP against the current keyframe's landmarks, every keyframe adds
+landmarks and a local bundle adjustment, and the map carries the scale of its first baseline: its true length
+where the caller passes ``step_lengths`` (an input with truth), else the unit (about one keyframe's motion).
+Until the map starts, two-view poses measured from the first keyframe take their lengths from that same source
+(they are the first baseline growing); where PnP finds no pose later, the two-view pose takes its length from
+the motion so far (constant velocity).
 """
 
 from __future__ import annotations
@@ -28,16 +36,18 @@ import numpy as np
 from deepslam.backend import relpose
 from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
+from deepslam.backend.mapping import Keyframe, LocalMap, project
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Tracker, Tracks
 from deepslam.geometry import rotation_angle, vector_angle
 from deepslam.interrupts import checkpoint
 
+BUNDLE_GAIN = 10.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
 
 
-StepLengths = Callable[[int, int], float]
-"""The true distance (m) between the cameras of frames i and j (indices in processing order)."""
+StepLengths = Callable[[int, int], float | None]
+"""The true distance (m) between the cameras of frames i and j (indices in processing order), None if unknown."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +82,9 @@ class FrameResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     keyframe: bool = False  # this frame became a keyframe
     measured_points: np.ndarray | None = None  # (K, 2) this frame's points of the correspondences, as measured
+    landmarks: int = 0  # the map's landmarks after this frame (scale "map"; else 0)
+    shared: int = 0  # its tracks the pose could be measured from: shared with the keyframe, or landmarks
+    map_points: np.ndarray | None = None  # (M, 3) the map's world points, where this frame changed the map
 
     @property
     def lost(self) -> bool:
@@ -102,7 +115,8 @@ class Odometry:
         tracker: the front-end.
         config: the odometry's settings.
         origin: ``T_world_cam`` (4, 4) of the first frame (default: the identity).
-        step_lengths: true step lengths, for ``config.scale == "gt"`` only.
+        step_lengths: true step lengths, for ``config.scale == "gt"`` (every step) and ``"map"`` (the first
+            baseline only, where it returns one).
     """
 
     def __init__(
@@ -118,7 +132,7 @@ class Odometry:
         if config.scale == "gt" and step_lengths is None:
             raise InputError(
                 "scale 'gt' takes each step's length from ground truth, which an evaluation passes in "
-                "(step_lengths); without it use scale 'plane' or 'none'"
+                "(step_lengths); without it use scale 'map', 'plane' or 'none'"
             )
         if config.scale == "none":  # the dominant plane's distance is the unit of length
             config = replace(config, plane_distance=1.0)
@@ -132,18 +146,68 @@ class Odometry:
         self.plane_normal_world: np.ndarray | None = None  # unit normal (3,) of the dominant plane last measured
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
+        self.map = LocalMap(config.map) if config.scale == "map" else None
+        self.first_baseline = config.scale == "map"  # no map has started yet (lengths from the first baseline's source)
+        self.length_per_px = 1.0 / config.keyframe_parallax  # a two-view step's length per pixel of track motion
+        self.located = 0  # landmarks the last frame was located with (map only)
+        self.shared = 0  # tracks the last measurement could use: shared with its keyframe, or landmarks of the map
+        self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
+        self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
         if self.config.scale == "gt":
             return self.step_lengths(i, j)
+        if self.config.scale == "map":
+            return self._two_view_length(i, j)
         return float(rel.t_over_d or 0.0) * self.plane_distance
+
+    def _two_view_length(self, i: int, j: int) -> float:
+        """With a map, the length of a two-view step between frames i < j, in proportion to the median motion of
+        their shared tracks: until the first map starts (for at most ``map.start_within`` frames) the true length
+        where ``step_lengths`` knows it, which sets the proportion (metres a pixel); without, one unit for
+        ``keyframe_parallax`` pixels."""
+        parallax = self._parallax(i, j, shared_tracks(self.history[i][1], self.history[j][1]))
+        known = self.step_lengths(i, j) if self.first_baseline and self.step_lengths is not None else None
+        if known is not None and parallax > 0:
+            self.length_per_px = known / parallax
+        return known if known is not None else parallax * self.length_per_px
+
+    def _locate(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
+        """Frame k located in the map by PnP on the landmarks among the pairs the front-end confirms with keyframe
+        kf (which the map holds); returns what ``_measure`` does, the pose "pnp" (T_kf_k metric)."""
+        tracks_kf, (frame_k, tracks_k) = self.history[kf][1], self.history[k]
+        pairs, points = self.tracker.confirm(tracks_kf, tracks_k, shared_tracks(tracks_kf, tracks_k))
+        ids = tracks_k.ids[pairs[:, 1]]
+        landmark = np.isin(ids, self.map.points()[0])
+        self.shared = int(np.isin(tracks_k.ids, self.map.points()[0]).sum())
+        pairs, points = pairs[landmark], points[landmark]
+        location = self.map.locate(ids[landmark], points, frame_k.K, self.graph.pose(k - 1))
+        self.located = int(location.inliers.sum())
+        if self.first_located is None or self.first_located[0] != kf:
+            self.first_located = (kf, self.located)
+        if location.T_world_cam is None:
+            failed = relpose.RelativePose(np.eye(4), "failed", location.inliers, reason=location.reason)
+            return failed, np.eye(4), pairs, points
+        T = np.linalg.inv(self._map_pose(kf)) @ location.T_world_cam
+        depth = np.median(project(location.T_world_cam, frame_k.K, self.map.points_of(location.ids))[1])
+        self.baseline_px = float(np.linalg.norm(T[:3, 3]) / max(depth, 1e-9) * frame_k.K[0, 0])
+        return relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points
+
+    def _map_pose(self, index: int) -> np.ndarray:
+        """The map's pose (4, 4) of a keyframe it holds."""
+        return next(keyframe.T_world_cam for keyframe in self.map.keyframes if keyframe.index == index)
+
+    def _map_holds(self, index: int) -> bool:
+        return self.map is not None and self.map.started and any(k.index == index for k in self.map.keyframes)
 
     def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences (K, 2),
         frame j's points of them (K, 2))."""
         tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
-        pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
+        shared = shared_tracks(tracks_i, tracks_j)
+        self.shared = len(shared)
+        pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared)
         p1 = tracks_i.points[pairs[:, 0]]
         R_world_i = self.graph.pose(i)[:3, :3]
         normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
@@ -158,7 +222,7 @@ class Odometry:
                 turns = [(_turn(other, previous), other) for other in map(estimate, FALLBACK_METHODS)]
                 (rotation, translation), closest = min(turns, key=lambda turn: turn[0])
                 rel = closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
-        if rel.ok and self.config.scale != "gt" and rel.model == "essential":
+        if rel.ok and self.config.scale in ("plane", "none") and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
         if rel.ok and rel.plane_normal is not None and not rel.rotation_only:
@@ -171,7 +235,7 @@ class Odometry:
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
         """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""
-        if self.config.scale != "gt" and rel.ok and rel.plane_normal is not None:
+        if self.config.scale in ("plane", "none") and rel.ok and rel.plane_normal is not None:
             distance = self.plane_distance - float(rel.plane_normal @ T[:3, 3])
             if distance > 1e-3:
                 self.plane_distance = distance
@@ -191,7 +255,9 @@ class Odometry:
             return FrameResult(0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True)
         checkpoint()  # Ctrl-C and SIGTERM take effect between the stages of a frame
         kf = self._reference(k, tracks)
-        rel, T, pairs, measured_points = self._measure(kf, k)
+        rel, T, pairs, measured_points = self._locate(kf, k) if self._map_holds(kf) else self._measure(kf, k)
+        if not rel.ok and self._map_holds(kf):  # too few landmarks: the two-view pose, at the map's speed
+            rel, T, pairs, measured_points = self._measure(kf, k)
         measured = time.perf_counter()
         checkpoint()
         T = self._add_measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
@@ -208,7 +274,17 @@ class Odometry:
             "graph": 1e3 * (optimised - measured),
             "covariance": 1e3 * (time.perf_counter() - optimised),
         }
-        return FrameResult(k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points)
+        landmarks, map_points = self._map_state(self.keyframe == k)
+        return FrameResult(
+            k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
+            self.shared, map_points,
+        )  # fmt: skip
+
+    def _map_state(self, changed: bool) -> tuple[int, np.ndarray | None]:
+        """The map's landmark count, and its points (M, 3) if it ``changed`` (else None); 0 and None without one."""
+        if self.map is None:
+            return 0, None
+        return len(self.map.landmarks), self.map.points()[1] if changed and self.map.started else None
 
     def _add_measurement(
         self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float
@@ -240,14 +316,70 @@ class Odometry:
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
         if self.lost_in_a_row >= config.reinitialise_after:
             self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
+        elif self._starts_map(k, kf, rel, T):
+            self.previous_keyframe, self.keyframe = current, k
         elif (
-            self._parallax(current, k, current_pairs) >= config.keyframe_parallax
-            or len(current_pairs) < config.min_shared_tracks
+            len(current_pairs) < config.min_shared_tracks
+            or (not self._starting_map() and self._parallax(current, k, current_pairs) >= config.keyframe_parallax)
             or (kf == current and confirmed < config.min_shared_tracks)
+            or self._map_thinning(current, len(self.history[k][1].ids))
         ):
             if rel.ok and kf == current:
                 self._update_plane_distance(rel, T)
             self.previous_keyframe, self.keyframe = current, k
+            if rel.ok and self._map_holds(kf):
+                self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
+                self._add_adjusted(k)
+        if self.map is not None and self.keyframe == k and not rel.ok:
+            self.map = LocalMap(config.map)  # tracking starts again from frame k: so does the map
+        self.first_baseline &= not self._map_holds(self.keyframe) and k < config.map.start_within
+
+    def _starting_map(self) -> bool:
+        """Whether a map is waiting to start from the current keyframe (which then stays while it shares
+        ``min_shared_tracks`` tracks, so that the baseline can grow)."""
+        return self.map is not None and not self.map.started
+
+    def _map_thinning(self, current: int, tracks: int) -> bool:
+        """The map's keyframe policy: the last frame, located against the current keyframe, was located with
+        fewer than ``map.coverage`` of the landmarks the first frame located against it had, or fewer than
+        ``map.min_located_share`` of its ``tracks``, or it moved ``keyframe_parallax`` pixels away from the keyframe
+        (as an angle at the landmarks' median depth: new landmarks can be triangulated)."""
+        if not (self._map_holds(current) and self.first_located is not None and self.first_located[0] == current):
+            return False
+        config = self.config.map
+        return (
+            self.located < config.coverage * self.first_located[1]
+            or self.located < config.min_located_share * tracks
+            or self.baseline_px >= self.config.keyframe_parallax
+        )
+
+    def _keyframe(self, k: int, T_world_cam: np.ndarray) -> Keyframe:
+        """Stored frame k as a keyframe of the map at ``T_world_cam`` (4, 4)."""
+        kept, tracks = self.history[k]
+        return Keyframe(k, T_world_cam, kept.K, tracks.ids.copy(), tracks.points.copy())
+
+    def _starts_map(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray) -> bool:
+        """Whether a map starts (again) from the current keyframe kf and frame k, measured from it as ``T``
+        (4, 4): tried at every frame while there is none, so that it starts as soon as the two triangulate
+        enough landmarks."""
+        if self.map is None or self._map_holds(kf) or kf != self.keyframe or not rel.ok or rel.model == "static":
+            return False
+        origin = self.graph.pose(kf)
+        if not self.map.start(self._keyframe(kf, origin), self._keyframe(k, origin @ T)):
+            return False
+        self._add_adjusted(k)
+        return True
+
+    def _add_adjusted(self, k: int) -> None:
+        """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe
+        before it in the map, ``BUNDLE_GAIN`` times surer than a measurement from as many landmarks."""
+        before, keyframe = self.map.keyframes[-2:]
+        T = np.linalg.inv(before.T_world_cam) @ keyframe.T_world_cam
+        seen = int(np.isin(keyframe.ids, self.map.points()[0]).sum())
+        sigmas = measurement_sigmas(seen, 1.0, float(np.linalg.norm(T[:3, 3]))) / BUNDLE_GAIN
+        if self.graph.in_window(before.index):
+            self.graph.add_between(before.index, k, T, sigmas)
+            self.graph.update(keep=[before.index, k])
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
         """Median motion (pixels) of the tracks shared by frames i and j."""
@@ -260,11 +392,12 @@ class Odometry:
         )
 
     def _reference(self, k: int, tracks: Tracks) -> int:
-        """The keyframe to measure frame k against: the current one, or the one before it while the
-        current one has too little parallax (and the older one still shares enough tracks)."""
+        """The keyframe to measure frame k against: the current one, or, without a map that holds it, the one
+        before it while the current one has too little parallax (and the older one still shares enough tracks)."""
         kf, older = self.keyframe, self.previous_keyframe
         if (
             older is None
+            or self._map_holds(kf)  # PnP needs no parallax
             or self._parallax(kf, k, shared_tracks(self.history[kf][1], tracks)) >= self.config.min_parallax
         ):
             return kf
@@ -277,6 +410,7 @@ class Odometry:
         if (
             j is None
             or j == reference
+            or self._map_holds(reference)  # located in the map, which holds keyframe j too
             or len(shared_tracks(self.history[j][1], self.history[k][1])) < self.config.min_shared_tracks
         ):
             return

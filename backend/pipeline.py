@@ -23,7 +23,8 @@ class Pipeline:
         config: the front-end and the odometry (``PipelineConfig``).
         tracker: a front-end of one's own instead of the one ``config.tracker`` describes.
         origin: ``T_world_cam`` (4, 4) of the first frame (default: the identity).
-        step_lengths: true step lengths for ``scale="gt"`` (evaluation only).
+        step_lengths: true step lengths for ``scale="gt"`` (evaluation only) and the first baseline of
+            ``scale="map"`` (where the input has truth; without, the map's unit is its first baseline).
 
     Example:
         >>> import numpy as np

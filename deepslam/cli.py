@@ -171,7 +171,8 @@ def _bench(args: argparse.Namespace) -> None:
 
 def _print_summary(summary: dict, scale: str) -> None:
     """A run's figures: what needs no truth, then the drift where there was truth."""
-    meaning = {"gt": " = ground-truth step lengths", "plane": " = known distance to the dominant plane",
+    meaning = {"map": " = a local map's, its first baseline from the truth where there is any, else 1",
+               "gt": " = ground-truth step lengths", "plane": " = known distance to the dominant plane",
                "none": ": up to scale, drift after Sim(3) alignment only"}[scale]  # fmt: skip
     print(f"run (scale: {scale}{meaning})")
     for key, value in summary.items():

@@ -26,8 +26,9 @@ class FrameDiagnostics:
     """How one frame went: tracks reported, inliers of its relative pose, whether it was lost (no
     relative pose: the estimate is a guess) and why, the median error (px) of its tracks against the
     simulator's truth (from the frame before), the position error (m) of its estimate, whether it became a
-    keyframe, and the median error (px) against truth of the pairs its pose was measured from (the
-    keyframe's points and this frame's, as measured); NaN where there is no truth."""
+    keyframe, the median error (px) against truth of the pairs its pose was measured from (the
+    keyframe's points and this frame's, as measured; NaN where there is no truth), and the landmarks of the
+    map after it (0 without a map)."""
 
     tracks: int
     inliers: int
@@ -37,12 +38,14 @@ class FrameDiagnostics:
     position_error_m: float = float("nan")
     keyframe: bool = False
     pair_error_px: float = float("nan")
+    landmarks: int = 0
 
 
 @dataclass
 class LogFrame:
     """One frame of a run. Poses are 4x4 ``T_world_cam``; ``covariance`` (6, 6) is gtsam's marginal
-    of the estimate (rotation first, body frame); ``tracks`` (N, 4) [x, y, score, id]."""
+    of the estimate (rotation first, body frame); ``tracks`` (N, 4) [x, y, score, id]; ``landmarks`` (M, 3): the
+    map's points in the world frame, where the frame changed the map (a keyframe), else None."""
 
     stamp_ns: int
     image: np.ndarray
@@ -53,3 +56,4 @@ class LogFrame:
     tracks: np.ndarray | None = None
     correspondences: Correspondences | None = None
     diagnostics: FrameDiagnostics | None = None
+    landmarks: np.ndarray | None = None

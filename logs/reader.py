@@ -261,6 +261,7 @@ def _apply(frame: dict, topic: str, message) -> None:
             int(message.tracks), int(message.inliers), bool(message.lost), message.reason,
             float(message.correspondence_error_px), float(message.position_error_m), bool(message.keyframe),
             float(getattr(message, "pair_error_px", float("nan"))),  # logs of 0.2.0 lack it
+            int(getattr(message, "landmarks", 0)),  # logs before the map lack it
         )  # fmt: skip
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(

@@ -33,6 +33,15 @@ _DEFINITIONS = {
         "std_msgs/Header header\nfloat32[] x\nfloat32[] y\nfloat32[] score\nint64[] id"
     ),
     "nav_msgs/Path": "std_msgs/Header header\ngeometry_msgs/PoseStamped[] poses",
+    "geometry_msgs/PoseArray": "std_msgs/Header header\nPose[] poses",
+    "sensor_msgs/PointField": (
+        "uint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\n"
+        "uint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count"
+    ),
+    "sensor_msgs/PointCloud2": (
+        "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\n"
+        "uint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense"
+    ),
     "foxglove_msgs/Point2": "float64 x\nfloat64 y",
     "foxglove_msgs/Color": "float64 r\nfloat64 g\nfloat64 b\nfloat64 a",
     "foxglove_msgs/CircleAnnotation": (
@@ -55,7 +64,8 @@ _DEFINITIONS = {
     "deepslam_msgs/FrameDiagnostics": (
         "# how the front-end and odometry did on one frame; NaN where a figure needs truth the run lacks\n"
         "std_msgs/Header header\nuint32 tracks\nuint32 inliers\nbool lost\nstring reason\n"
-        "float64 correspondence_error_px\nfloat64 position_error_m\nbool keyframe\nfloat64 pair_error_px"
+        "float64 correspondence_error_px\nfloat64 position_error_m\nbool keyframe\nfloat64 pair_error_px\n"
+        "uint32 landmarks"
     ),
     "deepslam_msgs/Correspondences": (
         "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"
@@ -79,6 +89,8 @@ _DEPENDENCIES = {
     "deepslam_msgs/Correspondences": ["std_msgs/Header", "builtin_interfaces/Time"],
     "deepslam_msgs/FrameDiagnostics": ["std_msgs/Header"],
     "nav_msgs/Path": ["std_msgs/Header", "geometry_msgs/PoseStamped"],
+    "geometry_msgs/PoseArray": ["std_msgs/Header", "geometry_msgs/Pose"],
+    "sensor_msgs/PointCloud2": ["std_msgs/Header", "sensor_msgs/PointField"],
     "foxglove_msgs/CircleAnnotation": ["builtin_interfaces/Time", "foxglove_msgs/Point2", "foxglove_msgs/Color"],
     "foxglove_msgs/PointsAnnotation": ["builtin_interfaces/Time", "foxglove_msgs/Point2", "foxglove_msgs/Color"],
     "foxglove_msgs/TextAnnotation": ["builtin_interfaces/Time", "foxglove_msgs/Point2", "foxglove_msgs/Color"],
@@ -128,6 +140,8 @@ TOPICS = {
     "/camera/annotations": "foxglove_msgs/ImageAnnotations",
     "/estimate/path": "nav_msgs/Path",
     "/groundtruth/path": "nav_msgs/Path",
+    "/map/landmarks": "sensor_msgs/PointCloud2",
+    "/map/keyframes": "geometry_msgs/PoseArray",
 }
 """Every topic a run writes, with its message type. Ground truth is absent in logs of real data."""
 

@@ -122,6 +122,7 @@ class LogWriter:
         self.frames = 0
         self._first_seen: dict[int, int] = {}  # track id -> the frame it was first logged in (live tracks only)
         self._paths: dict[str, list[tuple[int, np.ndarray]]] = {"/estimate/path": [], "/groundtruth/path": []}
+        self._keyframes: list[tuple[int, np.ndarray]] = []  # (stamp, T_estimate) of every keyframe
 
     def _put(self, topic: str, message: dict, stamp_ns: int) -> None:
         self._writer.write_message(
@@ -165,6 +166,11 @@ class LogWriter:
                 self._paths[topic].append((t, pose))
         if frame.diagnostics is not None and frame.diagnostics.keyframe:
             self._put_paths(t, PATH_POSES_AT_KEYFRAMES)
+            if frame.T_estimate is not None:
+                self._keyframes.append((t, frame.T_estimate))
+                self._put_keyframes(t, PATH_POSES_AT_KEYFRAMES)
+        if frame.landmarks is not None:
+            self._put("/map/landmarks", _point_cloud(t, frame.landmarks), t)
         if frame.diagnostics is not None:
             self._put("/diagnostics/frame", _diagnostics_message(frame), t)
         self.frames += 1
@@ -207,10 +213,15 @@ class LogWriter:
         for topic, poses in self._paths.items():
             if not poses:
                 continue
-            step = 1 if most is None else max(1, -(-len(poses) // most))
-            kept = poses[::step] + ([] if (len(poses) - 1) % step == 0 else [poses[-1]])  # always the latest
             self._put(topic, {"header": _header(stamp_ns, WORLD_FRAME), "poses": [
-                {"header": _header(t, WORLD_FRAME), "pose": _pose(T)} for t, T in kept]}, stamp_ns)  # fmt: skip
+                {"header": _header(t, WORLD_FRAME), "pose": _pose(T)} for t, T in _thinned(poses, most)]},
+                stamp_ns)  # fmt: skip
+
+    def _put_keyframes(self, stamp_ns: int, most: int | None) -> None:
+        """The keyframes' estimated poses so far as ``geometry_msgs/PoseArray``, thinned like the paths."""
+        kept = _thinned(self._keyframes, most)
+        self._put("/map/keyframes", {"header": _header(stamp_ns, WORLD_FRAME), "poses": [_pose(T) for _, T in kept]},
+                  stamp_ns)  # fmt: skip
 
     def close(self, complete: bool = True) -> None:
         """Finish the file (the whole paths, summary and footer) and, if ``complete``, rename it from
@@ -221,6 +232,8 @@ class LogWriter:
             last = max((poses[-1][0] for poses in self._paths.values() if poses), default=None)
             if last is not None:
                 self._put_paths(last, None)
+            if self._keyframes:
+                self._put_keyframes(self._keyframes[-1][0], None)
             self._writer.finish()
             self._file.flush()
             os.fsync(self._file.fileno())
@@ -235,6 +248,21 @@ class LogWriter:
         """A run that ends normally or is interrupted (Ctrl-C, SIGTERM) becomes ``path``; a run that fails
         stays in ``.partial``, leaving whatever ``path`` held."""
         self.close(complete=kind is None or issubclass(kind, KeyboardInterrupt))
+
+
+def _thinned(poses: list[tuple[int, np.ndarray]], most: int | None) -> list[tuple[int, np.ndarray]]:
+    """At most ``most`` of the (stamp, pose) pairs, evenly spaced and always the latest (None: all)."""
+    step = 1 if most is None else max(1, -(-len(poses) // most))
+    return poses[::step] + ([] if (len(poses) - 1) % step == 0 else [poses[-1]])
+
+
+def _point_cloud(stamp_ns: int, points: np.ndarray) -> dict:
+    """World points (M, 3) as an unordered ``sensor_msgs/PointCloud2`` of float32 x, y, z (little-endian)."""
+    data = np.ascontiguousarray(np.asarray(points, "<f4").reshape(-1, 3))
+    fields = [{"name": axis, "offset": 4 * i, "datatype": 7, "count": 1} for i, axis in enumerate("xyz")]
+    return {"header": _header(stamp_ns, WORLD_FRAME), "height": 1, "width": len(data), "fields": fields,
+            "is_bigendian": False, "point_step": 12, "row_step": 12 * len(data), "data": data.tobytes(),
+            "is_dense": True}  # fmt: skip
 
 
 def _image_message(frame: LogFrame) -> dict:
@@ -313,4 +341,4 @@ def _diagnostics_message(frame: LogFrame) -> dict:
     return {"header": _header(frame.stamp_ns, CAMERA_FRAME), "tracks": int(d.tracks), "inliers": int(d.inliers),
             "lost": bool(d.lost), "reason": d.reason, "correspondence_error_px": float(d.correspondence_error_px),
             "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe),
-            "pair_error_px": float(d.pair_error_px)}  # fmt: skip
+            "pair_error_px": float(d.pair_error_px), "landmarks": int(d.landmarks)}  # fmt: skip

@@ -117,7 +117,7 @@ class Scenario:
     def plane_distance(self) -> float:
         """Distance of the first camera to the world's dominant plane (the known height for scale)."""
         if self.world.dominant_plane is None:
-            raise InputError(f"the {self.world.name} world has no dominant plane: use --scale gt or none")
+            raise InputError(f"the {self.world.name} world has no dominant plane: use --scale map, gt or none")
         normal, offset = self.world.dominant_plane
         return float(abs(offset - normal @ self.trajectory.poses[0][:3, 3]))
 

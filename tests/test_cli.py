@@ -49,7 +49,7 @@ def test_run_and_drift_end_to_end(tmp_path, capsys):
     log = tmp_path / "run.mcap"
     assert main(["run", "--frontend", "classical", "--frames", "12", "--out", str(log)]) == 0
     out = capsys.readouterr().out
-    assert "ate_se3" in out and "scale: gt" in out and log.exists()
+    assert "ate_se3" in out and "scale: map" in out and "scale_drift" in out and log.exists()  # the default scale
     assert main(["drift", str(log), "--out", str(tmp_path / "drift"), "--tum"]) == 0
     assert (tmp_path / "drift" / "drift.png").exists()
 

@@ -157,7 +157,8 @@ def test_scale_none_reports_only_what_survives_a_sim3_alignment(recorded, tmp_pa
     _write_calibration(tmp_path / "camera.yaml", frames[0].K, frames[0].image.shape)
     argv = ["replay", str(tmp_path / "tum"), "--frontend", "classical", "--calibration", str(tmp_path / "camera.yaml"),
             "--out", str(tmp_path / "o.mcap"), "-q"]  # fmt: skip
-    assert main(argv) == 1 and "--scale gt needs ground truth in every frame, 6 of 12" in capsys.readouterr().err
+    gt = main([*argv, "--scale", "gt"])
+    assert gt == 1 and "--scale gt needs ground truth in every frame, 6 of 12" in capsys.readouterr().err
     assert main([*argv, "--scale", "none"]) == 0
     out = capsys.readouterr().out
     figures = dict(line.split()[:2] for line in out.splitlines() if line.startswith("  ") and len(line.split()) == 2)

@@ -17,10 +17,12 @@ class SweepConfig:
     """What ``deepslam eval pipeline`` sweeps; every field is an option."""
 
     worlds: tuple[WorldName, ...] = field(
-        default=("plane", "room"), metadata={"help": "simulated worlds: one textured wall and/or a room"}
+        default=("plane", "room", "clutter"),
+        metadata={"help": "simulated worlds: one textured wall, a room, boxes at many depths (clutter)"},
     )
     trajectories: tuple[trajectories.Kind, ...] = field(
-        default=("circle", "figure8", "line", "random"), metadata={"help": "camera paths"}
+        default=("circle", "figure8", "line", "random", "forward"),
+        metadata={"help": "camera paths (forward only in worlds with depth: in the plane world it would hit the wall)"},
     )
     frontends: tuple[Frontend, ...] = field(
         default=("oracle", "magic", "classical"),
@@ -44,7 +46,10 @@ class SweepConfig:
     )
     scale: Scale = field(
         default="gt",
-        metadata={"help": "monocular scale: gt = ground-truth step lengths; plane = known distance to the plane"},
+        metadata={
+            "help": "monocular scale: gt = ground-truth step lengths; map = the local map's (first baseline from "
+            "truth); plane = known distance to the plane; none = up to scale"
+        },
     )
     method: Method = field(
         default=OdometryConfig().method,
@@ -54,11 +59,13 @@ class SweepConfig:
     )
 
     def cells(self) -> list[tuple]:
-        """(world, trajectory, noise, lighting, front-end) of every row, in table order."""
+        """(world, trajectory, noise, lighting, front-end) of every row, in table order (no forward path in
+        the plane world)."""
         return [
             (world, path, noise, light, frontend)
             for world in self.worlds
             for path in self.trajectories
+            if not (world == "plane" and path == "forward")
             for noise in self.noise
             for light in self.lighting
             for frontend in self.frontends

@@ -2,7 +2,8 @@
 
 Per run: its settings, drift figures (where the log has ground truth), a top view of the estimate and
 the truth, translation error and RPE over time, tracks and inliers per frame with keyframes and lost
-frames marked, and a strip of frames with their tracks drawn. Images are embedded (base64 PNG): the page
+frames marked, the map's size and the scale over time (estimated over true path length), and a strip of
+frames with their tracks drawn. Images are embedded (base64 PNG): the page
 needs no network. What a log lacks (ground truth, diagnostics) or lost (a cut-off file) is said on the page.
 """
 
@@ -26,6 +27,7 @@ from deepslam.logs.frames import LogFrame
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 
 STRIP_FRAMES = 6  # frames shown per run, evenly spaced
+SCALE_WINDOW = 10  # frames over which the scale plot compares the estimated path length with the true one
 
 
 @dataclass
@@ -151,6 +153,38 @@ def tracking_figure(runs: list[Run]) -> str:
     return tag
 
 
+def map_figure(runs: list[Run]) -> str:
+    """The map's landmarks per frame (runs with a map) and the scale over time: the estimate's path length over
+    the truth's across ``SCALE_WINDOW`` frames (runs with truth; 1 is metric, its drift is scale drift)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mapped = [run for run in runs if any(f.diagnostics is not None and f.diagnostics.landmarks for f in run.frames)]
+    scaled = [run for run in runs if run.poses is not None and len(run.poses[0]) > SCALE_WINDOW]
+    if not mapped and not scaled:
+        return "<p>No run has a map or ground truth: no map plots.</p>"
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4), squeeze=False)
+    for run in mapped:
+        axes[0][0].plot([f.diagnostics.landmarks if f.diagnostics else 0 for f in run.frames], label=run.label)
+    for run in scaled:
+        seconds, truth, estimate = run.poses
+        steps = [np.linalg.norm(np.diff(p[:, :3, 3], axis=0), axis=1) for p in (estimate, truth)]
+        window = np.ones(SCALE_WINDOW)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.convolve(steps[0], window, "valid") / np.convolve(steps[1], window, "valid")
+        axes[0][1].plot(seconds[SCALE_WINDOW:], ratio, label=run.label)
+    axes[0][0].set(title="map size", xlabel="frame", ylabel="landmarks")
+    axes[0][1].set(title=f"scale over time ({SCALE_WINDOW} frames)", xlabel="time (s)", ylabel="estimated / true")
+    for ax in axes[0]:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    tag = _image_tag(_png(fig), "map size and scale")
+    plt.close(fig)
+    return tag
+
+
 def frame_strip(run: Run) -> str:
     """``STRIP_FRAMES`` frames of a run with their tracks: detected in green, carried (score 0) in red."""
     picks = np.linspace(0, len(run.frames) - 1, min(STRIP_FRAMES, len(run.frames))).round().astype(int)
@@ -175,8 +209,8 @@ def _median_px(errors: list[float]) -> str:
 
 def _drift_table(runs: list[Run]) -> str:
     header = [
-        "run", "front-end", "frames", "ATE SE3 m", "ATE Sim3 m", "RPE m", "final %", "lost", "track error px",
-        "pair error px",
+        "run", "front-end", "frames", "ATE SE3 m", "ATE Sim3 m", "RPE m", "final %", "scale drift", "lost",
+        "track error px", "pair error px",
     ]  # fmt: skip
     rows = []
     for run in runs:
@@ -186,6 +220,7 @@ def _drift_table(runs: list[Run]) -> str:
             run.label, str(run.metadata.get("frontend", "?")), str(len(run.frames)),
             *(f"{figures[k]:.4f}" if figures else "n/a" for k in ("ate_se3", "ate_sim3", "rpe_trans")),
             f"{figures['final_drift_pct']:.2f}" if figures else "n/a",
+            f"{figures['scale_drift']:.3f}" if figures else "n/a",
             str(sum(d.lost for d in diagnostics)) if diagnostics else "n/a",
             _median_px([d.correspondence_error_px for d in diagnostics]),
             _median_px([d.pair_error_px for d in diagnostics]),
@@ -221,7 +256,8 @@ def write_report(paths: list[Path], out: Path) -> list[str]:
         raise LogError("no log could be read: " + "; ".join(unreadable))
     sections = [f"<p class='note'>{html.escape(line)}</p>" for line in unreadable]
     sections += ["<h2>Drift</h2>", _drift_table(runs), trajectory_figures(runs), "<h2>Tracking</h2>",
-                 tracking_figure(runs), "<h2>Runs</h2><div class='runs'>"]  # fmt: skip
+                 tracking_figure(runs), "<h2>Map and scale</h2>", map_figure(runs),
+                 "<h2>Runs</h2><div class='runs'>"]  # fmt: skip
     for run in runs:
         notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in run.notes)
         sections.append(

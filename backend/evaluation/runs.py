@@ -11,6 +11,7 @@ import numpy as np
 
 from deepslam.backend import drift
 from deepslam.backend.config import OdometryConfig, PipelineConfig
+from deepslam.backend.evaluation.consistency import TrackObservations, consistent_share
 from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
 from deepslam.backend.odometry import FrameResult
 from deepslam.backend.pipeline import Pipeline
@@ -81,7 +82,10 @@ class RunOutput:
     frame was done (the poses that are logged); ground truth (N, 4, 4) with NaN where a frame has none, or
     None when no frame has any; per-frame diagnostics; every track's error against truth from frame to
     frame, and the error of every pair a pose was measured from (a keyframe's point and this frame's, as
-    measured), in pixels (empty without truth); the pipeline that ran."""
+    measured), in pixels (empty without truth); the pipeline that ran; each frame's inliers over the pairs or
+    landmarks it could be measured from (``FrameResult.shared``; NaN where there were none); every track
+    observation's distance (px) from the projection of its track's point triangulated with the true poses
+    (``consistency``; empty without truth)."""
 
     estimate: np.ndarray
     truth: np.ndarray | None
@@ -90,13 +94,18 @@ class RunOutput:
     pair_errors: np.ndarray
     pipeline: Pipeline
     frame_ms: np.ndarray  # (N,) the pipeline's milliseconds per frame
+    inlier_shares: np.ndarray  # (N - 1,)
+    consistency_errors: np.ndarray  # (M,)
 
     def summary(self, scale: str = "gt", timing: bool = True) -> dict:
         """What a run shows without truth: frames, keyframes, lost frames, the estimated path's length (in the
-        run's units: metres, or with ``scale`` "none" the first plane distances), median tracks and inliers a
-        frame and milliseconds a frame; then the drift over the frames with ground truth (with "none", only
-        what survives a Sim(3) alignment) and the median track and pair errors against the simulator, where
-        they can be measured. ``timing`` False leaves out the milliseconds (they differ from run to run)."""
+        run's units: metres, or with ``scale`` "none" the first plane distances, with "map" and no truth at the
+        start the first baseline), median tracks and inliers a frame, the median share of a frame's pairs (or
+        landmarks) that are inliers, the map's landmarks at the end and milliseconds a frame; then the drift over
+        the frames with ground truth (up to scale, only what survives a Sim(3) alignment), the median track and
+        pair errors against the simulator and the share of track observations within ``CONSISTENT_PX`` of their
+        track's point, where they can be measured. ``timing`` False leaves out the milliseconds (they differ from
+        run to run)."""
         figures: dict = {
             "frames": len(self.estimate),
             "keyframes": sum(d.keyframe for d in self.diagnostics),
@@ -104,6 +113,8 @@ class RunOutput:
             "path_length_estimate": path_length(self.estimate),
             "tracks_per_frame": _median(np.array([d.tracks for d in self.diagnostics], float)),
             "inliers_per_frame": _median(np.array([d.inliers for d in self.diagnostics[1:]], float)),  # 0: no pose
+            "inlier_share": _median(self.inlier_shares[np.isfinite(self.inlier_shares)]),
+            "landmarks": self.diagnostics[-1].landmarks,
         }
         if timing:
             figures["ms_per_frame"] = _median(self.frame_ms)
@@ -111,12 +122,15 @@ class RunOutput:
             known = ~np.isnan(self.truth[:, 0, 0])
             if known.sum() >= 2:
                 errors = drift.summary(self.estimate[known], self.truth[known])
-                keep = ("ate_sim3", "path_length") if scale == "none" else tuple(k for k in errors if k != "frames")
+                unit = scale == "none" or (scale == "map" and not known[0])  # no true first baseline: no metres
+                keep = ("ate_sim3", "path_length") if unit else tuple(k for k in errors if k != "frames")
                 figures |= {k: errors[k] for k in keep} | {"frames_with_truth": int(known.sum())}
         if len(self.track_errors):
             figures["track_error_px"] = _median(self.track_errors)
         if len(self.pair_errors):
             figures["pair_error_px"] = _median(self.pair_errors)
+        if len(self.consistency_errors):
+            figures["tracks_consistent"] = consistent_share(self.consistency_errors)
         return figures
 
 
@@ -153,6 +167,7 @@ def _diagnostics(
         position_error,
         result.keyframe,
         _median(frame_pair_errors),
+        result.landmarks,
     )
 
 
@@ -171,7 +186,8 @@ def run_frames(
     noise), handing each (frame, result, diagnostics) to ``sink`` as soon as it is done (Ctrl-C and
     SIGTERM take effect between frames). ``RunOutput.pipeline.trajectory()`` has the final smoothed
     trajectory."""
-    truth, online, diagnostics, errors, pair_errors, frame_ms = [], [], [], [], [], []
+    truth, online, diagnostics, errors, pair_errors, frame_ms, inlier_shares = [], [], [], [], [], [], []
+    observations = TrackObservations()
     previous: tuple[TrueFrame, Tracks] | None = None
     kept: dict[int, tuple[TrueFrame, Tracks]] = {}  # the frames a later pose may be measured against
     pipeline = None
@@ -186,6 +202,10 @@ def run_frames(
             truth.append(frame.T_world_cam)
             online.append(result.T_world_cam)
             frame_ms.append(sum(result.timings_ms.values()))
+            if result.relative is not None:
+                inlier_shares.append(result.relative.inliers.sum() / result.shared if result.shared else np.nan)
+            if frame.T_world_cam is not None:
+                observations.add(result.tracks.ids, result.tracks.points, frame.K, frame.T_world_cam)
             if sink is not None:
                 sink(frame, result, diagnostics[-1])
             previous = (replace(frame, image=None, landmarks=None), result.tracks)  # what the next frame needs
@@ -206,6 +226,8 @@ def run_frames(
         np.concatenate(pair_errors),
         pipeline,
         np.array(frame_ms),
+        np.array(inlier_shares, float),
+        observations.errors(),
     )
 
 
@@ -275,7 +297,7 @@ def replay(
     if odometry_config.scale == "gt" and frames.frames_with_truth < len(frames):
         raise InputError(
             f"{source}: --scale gt needs ground truth in every frame, {frames.frames_with_truth} of {len(frames)} "
-            f"have it; use --scale none (up to scale) or --scale plane --plane-distance M"
+            f"have it; use --scale map (the default: the first baseline from the truth there is), none or plane"
         )
     meta = {
         "replayed_from": str(source),
@@ -326,6 +348,7 @@ def to_log_frame(
         tracks,
         correspondences,
         diagnostics,
+        result.map_points,
     )
 
 

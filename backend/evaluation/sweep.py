@@ -50,6 +50,8 @@ def run_cell(piece: tuple) -> dict:
         "texture": built.texture,
         "corner_poor": built.corner_poor,
         "ate_se3": figures["ate_se3"],
+        "path_length": figures["path_length"],
+        "scale_drift": figures["scale_drift"],
         "failed": bool(figures["ate_se3"] > FAILED_SHARE * figures["path_length"]),
         "lost_frames": figures["lost_frames"],
         "track_error_px": figures["track_error_px"],
@@ -94,13 +96,16 @@ def _describe(piece: tuple) -> str:
 
 
 def _row(cell: tuple, runs: list[dict], config: SweepConfig) -> dict:
-    """A sweep row: the cell, its medians (photographs and mosaics; corner-poor apart), failures, runs."""
+    """A sweep row: the cell, its medians (photographs and mosaics; corner-poor apart; the ATE also as % of
+    the path, and |log scale drift|), failures, runs."""
     world, path, noise, light, frontend = cell
-    textured = [r["ate_se3"] for r in runs if not r["corner_poor"]]
+    textured = [r for r in runs if not r["corner_poor"]]
     return {
         "world": world, "trajectory": path, "noise": noise, "lighting": light, "frontend": frontend,
         "scale": config.scale,
-        "median_ate_se3": _median(textured),
+        "median_ate_se3": _median([r["ate_se3"] for r in textured]),
+        "median_ate_pct": _median([100 * r["ate_se3"] / r["path_length"] for r in textured]),
+        "median_log_scale_drift": _median([abs(np.log(r["scale_drift"])) for r in textured]),
         "median_ate_se3_corner_poor": _median([r["ate_se3"] for r in runs if r["corner_poor"]]),
         "failed": sum(r["failed"] for r in runs),
         "runs": runs,
@@ -110,19 +115,20 @@ def _row(cell: tuple, runs: list[dict], config: SweepConfig) -> dict:
 def matrix_lines(rows: list[dict]) -> list[str]:
     """The sweep as a table, then every run's ATE with its seed's texture."""
     lines = [
-        f"{'world':<6} {'path':<8} {'noise':>5} {'light':>5} {'frontend':<9} {'ATE med m':>9} "
-        f"{'corner-poor':>11} {'failed':>7}"
+        f"{'world':<7} {'path':<8} {'noise':>5} {'light':>5} {'frontend':<9} {'ATE med m':>9} {'% path':>6} "
+        f"{'|log s|':>7} {'corner-poor':>11} {'failed':>7}"
     ]
     for r in rows:
         lines.append(
-            f"{r['world']:<6} {r['trajectory']:<8} {r['noise']:>5.2f} {r['lighting']:>5.2f} {r['frontend']:<9} "
-            f"{r['median_ate_se3']:>9.4f} {r['median_ate_se3_corner_poor']:>11.4f} "
+            f"{r['world']:<7} {r['trajectory']:<8} {r['noise']:>5.2f} {r['lighting']:>5.2f} {r['frontend']:<9} "
+            f"{r['median_ate_se3']:>9.4f} {r.get('median_ate_pct', np.nan):>6.2f} "
+            f"{r.get('median_log_scale_drift', np.nan):>7.3f} {r['median_ate_se3_corner_poor']:>11.4f} "
             f"{r['failed']:>3}/{len(r['runs']):<3}"
         )
     textures = ", ".join(f"{run['seed']} {run['texture']}" for run in rows[0]["runs"])
     lines += ["", f"ATE SE3 m per seed (seed texture: {textures}):"]
     lines += [
-        f"{r['world']:<6} {r['trajectory']:<8} {r['noise']:>5.2f} {r['lighting']:>5.2f} {r['frontend']:<9} "
+        f"{r['world']:<7} {r['trajectory']:<8} {r['noise']:>5.2f} {r['lighting']:>5.2f} {r['frontend']:<9} "
         + " ".join(f"{run['ate_se3']:7.4f}" for run in r["runs"])
         for r in rows
     ]

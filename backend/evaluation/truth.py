@@ -2,7 +2,8 @@
 
 The pipeline sees images, K and stamps only. What a simulator or a dataset knows of a frame travels as a
 ``TrueFrame``; ``GroundTruth`` hands the parts an evaluation may use to the pipeline it builds: the first
-frame's pose, true step lengths for ``scale="gt"`` and the oracle front-end's landmark projections.
+frame's pose, true step lengths for ``scale="gt"`` (and the first baseline of ``"map"``) and the oracle
+front-end's landmark projections.
 """
 
 from __future__ import annotations
@@ -53,6 +54,11 @@ class GroundTruth:
             raise InputError("scale 'gt' needs ground-truth poses in every frame")
         return float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
 
+    def known_step_length(self, i: int, j: int) -> float | None:
+        """The true distance (m) between the cameras of frames i and j, None where either has no truth."""
+        a, b = self.poses[i], self.poses[j]
+        return None if a is None or b is None else float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
+
     def landmarks(self) -> Truth:
         """The visible landmarks of the frame last seen (the oracle's input)."""
         if self._landmarks is None:
@@ -70,7 +76,8 @@ class GroundTruth:
         with ``scale="gt"`` and, for the oracle front-end, this truth's landmarks (``seed``: its noise)."""
         if tracker is None and config.tracker.frontend == "oracle":
             tracker = self.oracle(config.tracker, seed)
-        step_lengths = self.step_length if config.odometry.scale == "gt" else None
+        scale = config.odometry.scale  # "map" takes its first baseline's length from the truth where there is any
+        step_lengths = {"gt": self.step_length, "map": self.known_step_length}.get(scale)
         return Pipeline(config, tracker, first.T_world_cam, step_lengths)
 
 

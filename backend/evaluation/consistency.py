@@ -1,0 +1,65 @@
+"""Whether a track stays one physical point (evaluation only: it needs the true poses).
+
+Each track seen in at least two frames is triangulated from all its observations with the true camera poses
+(linear least squares); an observation that lies more than a few pixels from that point's projection belongs
+to another point (the track jumped, or drifted with the parallax).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+CONSISTENT_PX = 2.0  # an observation within this many pixels of its track's point is one of that point
+
+
+@dataclass
+class TrackObservations:
+    """Every observation of every track over a run, with the true camera of each frame."""
+
+    ids: list[np.ndarray] = field(default_factory=list)  # per frame: track ids (N,)
+    points: list[np.ndarray] = field(default_factory=list)  # per frame: pixels (N, 2)
+    projections: list[np.ndarray] = field(default_factory=list)  # per frame: true K [R | t] (3, 4)
+
+    def add(self, ids: np.ndarray, points: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> None:
+        """One frame's tracks (ids (N,), pixels (N, 2)) and its true pose ``T_world_cam`` (4, 4) with K (3, 3)."""
+        self.ids.append(np.asarray(ids, np.int64))
+        self.points.append(np.asarray(points, np.float64).reshape(-1, 2))
+        self.projections.append(K @ np.linalg.inv(T_world_cam)[:3])
+
+    def errors(self) -> np.ndarray:
+        """Pixel distances (M,) of every observation of a track seen at least twice from the projection of the
+        point triangulated from all that track's observations."""
+        if not self.ids:
+            return np.zeros(0)
+        frame = np.concatenate([np.full(len(ids), i) for i, ids in enumerate(self.ids)])
+        ids, points = np.concatenate(self.ids), np.concatenate(self.points)
+        order = np.lexsort((frame, ids))
+        ids, points, frame = ids[order], points[order], frame[order]
+        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        ends = np.r_[starts[1:], len(ids)]
+        projections = np.stack(self.projections)
+        errors = [
+            _reprojection_errors(points[a:b], projections[frame[a:b]])
+            for a, b in zip(starts, ends, strict=True)
+            if b - a >= 2
+        ]
+        return np.concatenate(errors) if errors else np.zeros(0)
+
+
+def _reprojection_errors(pixels: np.ndarray, projections: np.ndarray) -> np.ndarray:
+    """Distances (M,) of pixels (M, 2) from the projections (by (M, 3, 4)) of their linear triangulation."""
+    rows = np.concatenate(
+        [pixels[:, :1] * projections[:, 2] - projections[:, 0], pixels[:, 1:] * projections[:, 2] - projections[:, 1]]
+    )
+    point = np.linalg.svd(rows)[2][-1]
+    projected = projections @ point
+    with np.errstate(divide="ignore", invalid="ignore"):
+        distances = np.linalg.norm(projected[:, :2] / projected[:, 2:] - pixels, axis=1)
+    return np.where(np.isfinite(distances) & (projected[:, 2] * point[3] > 0), distances, np.inf)
+
+
+def consistent_share(errors: np.ndarray) -> float:
+    """The share of observations within ``CONSISTENT_PX`` of their track's point (NaN without any)."""
+    return float(np.mean(errors <= CONSISTENT_PX)) if len(errors) else float("nan")

@@ -1,0 +1,278 @@
+"""A local map for monocular odometry: landmarks triangulated from keyframes, each frame located in it by PnP,
+a bundle adjustment over a window of keyframes, culling so that long runs stay flat.
+
+Landmarks are keyed by the front-end's track ids: a track is one physical point for as long as the front-end
+follows it, so its observations in the keyframes are the landmark's. The map is built in the world frame of
+the odometry's first keyframe; its scale is that of the first baseline it was triangulated from (the caller
+chooses it: a true length where the input has one, else 1), and the map carries it from keyframe to keyframe.
+
+Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors with a
+Huber loss: the window's keyframe poses and the landmarks two of them observe; the window's oldest keyframe is
+held fixed and its distance to the next one kept (a ``RangeFactorPose3``): gauge and scale, and the map's
+first two keyframes are adjusted as soon as it starts. Observations behind a camera or farther than
+``max_reprojection_px`` from their landmark's projection afterwards are dropped, as are landmarks left with
+fewer than two; landmarks that no keyframe of the window observes are dropped with the keyframes that leave it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import gtsam
+import numpy as np
+
+from deepslam.backend.config import MapConfig
+
+PNP_ITERATIONS = 200  # PnP RANSAC's iterations
+
+
+@dataclass
+class Keyframe:
+    """A keyframe of the map: its index in processing order, ``T_world_cam`` (4, 4), K (3, 3), and the track
+    ids (N,) and pixels (N, 2) it observed."""
+
+    index: int
+    T_world_cam: np.ndarray
+    K: np.ndarray
+    ids: np.ndarray
+    points: np.ndarray
+
+    def projection(self) -> np.ndarray:
+        """The 3x4 projection matrix K [R | t] of world points into this keyframe."""
+        T_cam_world = np.linalg.inv(self.T_world_cam)
+        return self.K @ T_cam_world[:3]
+
+
+@dataclass
+class Location:
+    """A frame located in the map: ``T_world_cam`` (4, 4) or None where PnP found no pose, the landmark
+    ids (M,) it was given and which of them are inliers (M,) bool, and why it failed."""
+
+    T_world_cam: np.ndarray | None
+    ids: np.ndarray
+    inliers: np.ndarray
+    reason: str = ""
+
+
+def project(T_world_cam: np.ndarray, K: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (N, 3) seen by the camera ``T_world_cam`` (4, 4) with K (3, 3): pixels (N, 2) and depths (N,)."""
+    T_cam_world = np.linalg.inv(T_world_cam)
+    camera = points @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    pixels = camera @ K.T
+    depth = camera[:, 2]
+    return pixels[:, :2] / np.where(np.abs(depth) > 1e-12, depth, 1e-12)[:, None], depth
+
+
+def _pose_from_pnp(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    T_cam_world = np.eye(4)
+    T_cam_world[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_cam_world[:3, 3] = tvec.ravel()
+    return np.linalg.inv(T_cam_world)
+
+
+def _pnp_guess(T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    T_cam_world = np.linalg.inv(T_world_cam)
+    return cv2.Rodrigues(T_cam_world[:3, :3])[0], T_cam_world[:3, 3].reshape(3, 1).copy()
+
+
+class LocalMap:
+    """Landmarks (track id -> world point) and the window of keyframes that observe them.
+
+    Example:
+        >>> import numpy as np
+        >>> from deepslam.backend.config import MapConfig
+        >>> K = np.array([[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]])
+        >>> rng = np.random.default_rng(0)
+        >>> world = np.c_[rng.uniform(-1, 1, (60, 2)), rng.uniform(2, 4, 60)]
+        >>> first, second = np.eye(4), np.eye(4); second[0, 3] = 0.5
+        >>> views = [Keyframe(i, T, K, np.arange(60), project(T, K, world)[0]) for i, T in enumerate((first, second))]
+        >>> local_map = LocalMap(MapConfig())
+        >>> local_map.start(*views)
+        60
+        >>> moved = np.eye(4); moved[0, 3] = 0.7
+        >>> location = local_map.locate(np.arange(60), project(moved, K, world)[0], K, second)
+        >>> np.round(location.T_world_cam[:3, 3], 3).tolist() == [0.7, 0.0, 0.0], int(location.inliers.sum())
+        (True, 60)
+    """
+
+    def __init__(self, config: MapConfig | None = None):
+        self.config = config or MapConfig()
+        self.landmarks: dict[int, np.ndarray] = {}  # track id -> world point (3,)
+        self.keyframes: list[Keyframe] = []  # the window, oldest first
+
+    @property
+    def started(self) -> bool:
+        return bool(self.landmarks)
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Landmark ids (M,) and world points (M, 3)."""
+        ids = np.fromiter(self.landmarks, np.int64, len(self.landmarks))
+        return ids, np.array([self.landmarks[i] for i in ids]).reshape(-1, 3)
+
+    def points_of(self, ids: np.ndarray) -> np.ndarray:
+        """The world points (N, 3) of the landmarks ``ids`` (N,)."""
+        return np.array([self.landmarks[int(i)] for i in ids]).reshape(-1, 3)
+
+    def start(self, first: Keyframe, second: Keyframe) -> int:
+        """Triangulate the tracks two keyframes share (their poses already at the map's scale); the map starts
+        if ``min_initial_landmarks`` were seen from ``min_initial_px`` apart. Returns how many (0 when it did not
+        start)."""
+        self.landmarks, self.keyframes = {}, [first]
+        made = self._triangulate(second, self.config.min_initial_px)
+        if made < self.config.min_initial_landmarks:
+            self.landmarks, self.keyframes = {}, []
+            return 0
+        self.keyframes.append(second)
+        self.adjust()
+        return made
+
+    def locate(self, ids: np.ndarray, points: np.ndarray, K: np.ndarray, guess: np.ndarray) -> Location:
+        """The pose of a frame whose tracks ``ids`` (N,) were seen at ``points`` (N, 2): PnP with RANSAC on those
+        that are landmarks, refined by Levenberg-Marquardt on its inliers (motion only); ``guess`` (4, 4): the
+        pose expected. The returned ids are the tracks that are landmarks."""
+        known = np.array([i in self.landmarks for i in ids], bool) if len(ids) else np.zeros(0, bool)
+        ids, points = ids[known], np.asarray(points, np.float64)[known]
+        if len(ids) < self.config.min_located:
+            return Location(None, ids, np.zeros(len(ids), bool), f"{len(ids)} landmarks in view")
+        world = np.array([self.landmarks[i] for i in ids])
+        rvec, tvec = _pnp_guess(guess)
+        found, rvec, tvec, chosen = cv2.solvePnPRansac(
+            world, points, K, None, rvec, tvec, useExtrinsicGuess=True, iterationsCount=PNP_ITERATIONS,
+            reprojectionError=self.config.pnp_px, confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE,
+        )  # fmt: skip
+        if not found or chosen is None or len(chosen) < self.config.min_located:
+            return Location(None, ids, np.zeros(len(ids), bool), "PnP found no pose")
+        inliers = np.zeros(len(ids), bool)
+        inliers[chosen.ravel()] = True
+        for _ in range(2):  # refine on the inliers, then take the inliers of the refined pose
+            rvec, tvec = cv2.solvePnPRefineLM(world[inliers], points[inliers], K, None, rvec, tvec)
+            pose = _pose_from_pnp(rvec, tvec)
+            pixels, depth = project(pose, K, world)
+            inliers = (np.linalg.norm(pixels - points, axis=1) < self.config.pnp_px) & (depth > 0)
+            if inliers.sum() < self.config.min_located:
+                return Location(None, ids, inliers, f"{int(inliers.sum())} landmarks agree with PnP's pose")
+        return Location(pose, ids, inliers)
+
+    def add(self, keyframe: Keyframe) -> int:
+        """A new keyframe (its pose from ``locate``): new landmarks from the tracks it shares with the window,
+        a local bundle adjustment, culling. Returns how many landmarks were made."""
+        made = self._triangulate(keyframe)
+        self.keyframes = (self.keyframes + [keyframe])[-self.config.window :]
+        self.adjust()
+        self._cull()
+        return made
+
+    def _triangulate(self, keyframe: Keyframe, min_px: float | None = None) -> int:
+        """Landmarks for the tracks of ``keyframe`` that are none yet, each from the oldest keyframe of the window
+        that saw it (the widest baseline), kept where in front of both cameras, reprojecting within
+        ``max_reprojection_px`` and seen from ``min_px`` apart (an angle in pixels of the new keyframe's focal
+        length; default ``min_triangulation_px``)."""
+        made, min_px = 0, self.config.min_triangulation_px if min_px is None else min_px
+        for older in self.keyframes:
+            new = np.array([i not in self.landmarks for i in keyframe.ids], bool)
+            _, a, b = np.intersect1d(older.ids, keyframe.ids[new], return_indices=True)
+            if len(a) == 0:
+                continue
+            b = np.nonzero(new)[0][b]
+            homogeneous = cv2.triangulatePoints(
+                older.projection(), keyframe.projection(), older.points[a].T, keyframe.points[b].T
+            )
+            with np.errstate(divide="ignore", invalid="ignore"):
+                world = (homogeneous[:3] / homogeneous[3]).T
+            good = np.all(np.isfinite(world), axis=1) & self._well_seen(world, (older, a), (keyframe, b))
+            good &= np.radians(self._angle_deg(world, older, keyframe)) * keyframe.K[0, 0] >= min_px
+            for track, point in zip(keyframe.ids[b[good]], world[good], strict=True):
+                self.landmarks[int(track)] = point
+            made += int(good.sum())
+        return made
+
+    def _well_seen(self, world: np.ndarray, *views: tuple[Keyframe, np.ndarray]) -> np.ndarray:
+        """Which world points (N, 3) lie in front of each view and project within ``max_reprojection_px`` of
+        its observations (each view: a keyframe and the indices (N,) of its points)."""
+        good = np.ones(len(world), bool)
+        for keyframe, index in views:
+            pixels, depth = project(keyframe.T_world_cam, keyframe.K, np.nan_to_num(world))
+            good &= (depth > 0) & (
+                np.linalg.norm(pixels - keyframe.points[index], axis=1) < self.config.max_reprojection_px
+            )
+        return good
+
+    @staticmethod
+    def _angle_deg(world: np.ndarray, a: Keyframe, b: Keyframe) -> np.ndarray:
+        """Degrees (N,) between the rays from the two keyframes' centres to each world point (N, 3)."""
+        rays = [world - keyframe.T_world_cam[:3, 3] for keyframe in (a, b)]
+        cosine = np.sum(rays[0] * rays[1], 1) / (np.linalg.norm(rays[0], axis=1) * np.linalg.norm(rays[1], axis=1))
+        return np.degrees(np.arccos(np.clip(np.nan_to_num(cosine, nan=1.0), -1, 1)))
+
+    def _observations(self) -> dict[int, list[tuple[int, np.ndarray]]]:
+        """Landmark id -> [(window position, pixel (2,))] over the window's keyframes."""
+        seen: dict[int, list[tuple[int, np.ndarray]]] = {}
+        for position, keyframe in enumerate(self.keyframes):
+            for track, pixel in zip(keyframe.ids, keyframe.points, strict=True):
+                if int(track) in self.landmarks:
+                    seen.setdefault(int(track), []).append((position, pixel))
+        return seen
+
+    def adjust(self) -> None:
+        """Bundle adjustment of the window (the oldest keyframe fixed, its distance to the next kept), then drop
+        observations that do not fit (``_drop_outliers``)."""
+        seen = {track: views for track, views in self._observations().items() if len(views) >= 2}
+        if len(self.keyframes) < 2 or not seen:
+            return
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        pixel_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+        )
+        for position, keyframe in enumerate(self.keyframes):
+            values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
+        first, second = (gtsam.symbol("x", position) for position in (0, 1))
+        graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), gtsam.noiseModel.Constrained.All(6)))
+        distance = np.linalg.norm(self.keyframes[1].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
+        graph.add(
+            gtsam.RangeFactorPose3(
+                first, second, float(distance), gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * distance + 1e-9)
+            )
+        )
+        calibrations = [gtsam.Cal3_S2(k.K[0, 0], k.K[1, 1], k.K[0, 1], k.K[0, 2], k.K[1, 2]) for k in self.keyframes]
+        for track, views in seen.items():
+            values.insert(gtsam.symbol("l", track), gtsam.Point3(self.landmarks[track]))
+            for position, pixel in views:
+                graph.add(
+                    gtsam.GenericProjectionFactorCal3_S2(
+                        pixel,
+                        pixel_noise,
+                        gtsam.symbol("x", position),
+                        gtsam.symbol("l", track),
+                        calibrations[position],
+                        False,
+                        False,
+                    )  # fmt: skip
+                )
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.iterations)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        for position, keyframe in enumerate(self.keyframes):
+            keyframe.T_world_cam = result.atPose3(gtsam.symbol("x", position)).matrix()
+        for track in seen:
+            self.landmarks[track] = result.atPoint3(gtsam.symbol("l", track))
+        self._drop_outliers()
+
+    def _drop_outliers(self) -> None:
+        """Drop the keyframes' observations behind the camera or farther than ``max_reprojection_px`` from their
+        landmark's projection."""
+        for keyframe in self.keyframes:
+            known = np.array([int(i) in self.landmarks for i in keyframe.ids], bool)
+            world = np.array([self.landmarks[int(i)] for i in keyframe.ids[known]]).reshape(-1, 3)
+            pixels, depth = project(keyframe.T_world_cam, keyframe.K, world)
+            bad = (depth <= 0) | (
+                np.linalg.norm(pixels - keyframe.points[known], axis=1) > self.config.max_reprojection_px
+            )
+            keep = np.ones(len(keyframe.ids), bool)
+            keep[np.nonzero(known)[0][bad]] = False
+            keyframe.ids, keyframe.points = keyframe.ids[keep], keyframe.points[keep]
+
+    def _cull(self) -> None:
+        """Drop the landmarks no keyframe of the window observes."""
+        observed = set(np.concatenate([k.ids for k in self.keyframes]).tolist())
+        self.landmarks = {track: point for track, point in self.landmarks.items() if track in observed}

@@ -1,0 +1,149 @@
+"""The local map (triangulation, PnP, bundle adjustment, culling) and scale "map"."""
+
+import numpy as np
+import pytest
+
+from deepslam.backend import drift
+from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
+from deepslam.backend.evaluation.runs import simulated_frames
+from deepslam.backend.evaluation.truth import run_pipeline
+from deepslam.backend.mapping import Keyframe, LocalMap, project
+from deepslam.backend.pipeline import Pipeline
+from deepslam.frontend.config import TrackerConfig
+from deepslam.sim.camera import intrinsics
+from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+K = intrinsics((120, 160))
+
+
+def _world(rng, count=200):
+    """Points (N, 3) at 2-8 m in front of the origin, spread across the view."""
+    depth = rng.uniform(2, 8, count)
+    return np.c_[rng.uniform(-0.6, 0.6, (count, 2)) * depth[:, None], depth]
+
+
+def _keyframe(index, T_world_cam, world, rng, noise=0.3):
+    pixels, depth = project(T_world_cam, K, world)
+    seen = (depth > 0) & np.all((pixels >= 0) & (pixels <= [159, 119]), axis=1)
+    ids = np.nonzero(seen)[0]
+    return Keyframe(index, T_world_cam, K, ids, pixels[seen] + rng.normal(0, noise, (len(ids), 2)))
+
+
+def _sideways(x):
+    T = np.eye(4)
+    T[0, 3] = x
+    return T
+
+
+def test_a_map_triangulates_locates_and_keeps_its_scale_through_bundle_adjustment(rng):
+    world = _world(rng)
+    local_map = LocalMap(MapConfig(window=4))
+    assert local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.6), world, rng)) > 50
+    ids, points = local_map.points()
+    assert np.median(np.linalg.norm(points - world[ids], axis=1) / world[ids, 2]) < 0.03
+    for index, x in enumerate((1.0, 1.4, 1.8, 2.2), start=2):  # each keyframe located, then added
+        truth = _sideways(x)
+        seen = _keyframe(index, truth, world, rng)
+        location = local_map.locate(seen.ids, seen.points, K, _sideways(x - 0.4))
+        assert location.T_world_cam is not None
+        assert np.linalg.norm(location.T_world_cam[:3, 3] - truth[:3, 3]) < 0.05
+        assert location.inliers.mean() > 0.9
+        local_map.add(Keyframe(index, location.T_world_cam, K, seen.ids, seen.points))
+    assert [k.index for k in local_map.keyframes] == [2, 3, 4, 5]  # the window
+    observed = set(np.concatenate([k.ids for k in local_map.keyframes]).tolist())
+    assert set(local_map.landmarks) <= observed  # culled with the keyframes that left
+    ids, points = local_map.points()
+    assert np.median(np.linalg.norm(points - world[ids], axis=1) / world[ids, 2]) < 0.03  # the first baseline's scale
+
+
+def test_a_map_does_not_start_from_too_little_parallax_and_pnp_needs_enough_landmarks(rng):
+    world = _world(rng)
+    local_map = LocalMap()
+    assert local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.01), world, rng)) == 0
+    assert not local_map.started
+    local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.4), world, rng))
+    few = np.array(list(local_map.landmarks)[: MapConfig().min_located - 1])
+    location = local_map.locate(few, project(np.eye(4), K, world[few])[0], K, np.eye(4))
+    assert location.T_world_cam is None and "landmarks in view" in location.reason
+
+
+def test_bundle_adjustment_drops_observations_that_do_not_fit(rng):
+    world = _world(rng)
+    local_map = LocalMap(MapConfig(window=3))
+    local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.6), world, rng))
+    third = _keyframe(2, _sideways(1.0), world, rng)
+    moved = third.ids[:20]
+    third.points[:20] += 15.0  # twenty tracks jumped to other points
+    were_landmarks = moved[np.isin(moved, list(local_map.landmarks))]
+    local_map.add(third)
+    assert len(were_landmarks) >= 3
+    assert not np.isin(were_landmarks, local_map.keyframes[-1].ids).any()  # their observations dropped
+    kept = local_map.keyframes[-1].ids
+    assert not any(int(track) in local_map.landmarks for track in kept[np.isin(kept, moved)])  # none made
+
+
+def _run(world, trajectory, frontend="oracle", scale="map", frames=45, seed=0):
+    scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
+    config = PipelineConfig(TrackerConfig(frontend), OdometryConfig(scale=scale))
+    results, truth = [], []
+    for pipeline, frame, result in run_pipeline(simulated_frames(scenario), config):  # noqa: B007 (the last is kept)
+        results.append(result)
+        truth.append(frame.T_world_cam)
+    return pipeline, results, np.stack(truth)
+
+
+@pytest.mark.slow
+def test_scale_map_follows_a_cluttered_world_with_the_first_baselines_scale():
+    pipeline, results, truth = _run("clutter", "circle")
+    estimate = np.stack([r.T_world_cam for r in results])
+    figures = drift.summary(estimate, truth)
+    assert figures["ate_se3"] < 0.03 * figures["path_length"], figures  # metric, not only up to scale
+    assert abs(np.log(figures["scale_drift"])) < 0.2, figures
+    started = next(r.index for r in results[1:] if r.relative.model == "pnp")
+    assert started < 15 and not any(r.lost for r in results[started:])  # (two-view poses may be ambiguous before)
+    assert sum(r.relative.model == "pnp" for r in results[started:]) > 0.9 * (len(results) - started)
+    assert pipeline.odometry.map.started and len(pipeline.odometry.map.keyframes) <= MapConfig().window
+
+
+def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=30))
+    frames = list(simulated_frames(scenario))
+    pipeline = Pipeline(PipelineConfig(TrackerConfig("classical"), OdometryConfig(scale="map")))
+    for frame in frames:
+        pipeline.process(frame.image, frame.K, frame.stamp_ns)
+    estimate, truth = pipeline.trajectory(), np.stack([f.T_world_cam for f in frames])
+    assert pipeline.odometry.map.started
+    figures = drift.summary(estimate, truth)
+    assert figures["ate_sim3"] < 0.05 * figures["path_length"], figures
+
+
+def test_the_map_is_logged_as_a_point_cloud_with_its_keyframes(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from deepslam.backend.evaluation.runs import simulate
+    from deepslam.logs.reader import read_frames
+
+    log = tmp_path / "map.mcap"
+    result = simulate(
+        ScenarioConfig(world="clutter", frames=30), TrackerConfig("classical"), OdometryConfig(), log, progress=False
+    )
+    clouds, keyframes = [], []
+    with open(log, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, _, message in reader.iter_decoded_messages(topics=["/map/landmarks", "/map/keyframes"]):
+            if channel.topic == "/map/landmarks":
+                clouds.append(np.frombuffer(bytes(message.data), "<f4").reshape(message.width, 3))
+            else:
+                keyframes.append(len(message.poses))
+    pipeline = result["pipeline"]
+    assert clouds and len(clouds[-1]) > 30 and message.header.frame_id == "world"
+    ids, points = pipeline.odometry.map.points()
+    assert np.array_equal(_rows(clouds[-1]), _rows(points.astype("<f4")))  # the map as the last keyframe left it
+    assert keyframes[-1] == sum(d.keyframe for d in result["diagnostics"])  # every keyframe, marked
+    frames = list(read_frames(log))
+    assert frames[-1].diagnostics.landmarks == len(ids) > 0
+
+
+def _rows(points: np.ndarray) -> np.ndarray:
+    return points[np.lexsort(points.T[::-1])]
