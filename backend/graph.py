@@ -21,6 +21,8 @@ import numpy as np
 from deepslam.backend.config import GraphConfig
 from deepslam.errors import InputError
 
+RESTART_SIGMAS = np.array([1e-3] * 3 + [1e-2] * 3)  # rad, m: how firmly a restarted window holds its poses
+
 
 def measurement_sigmas(
     inliers: int,
@@ -128,11 +130,33 @@ class PoseGraph:
             timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
             for key in {*self._new_keys, *keep}:
                 timestamps.insert((key, now))
-            self.solver.update(self._new_factors, self._new_values, timestamps)
+            window = dict(self.solver.timestamps())
+            try:
+                self.solver.update(self._new_factors, self._new_values, timestamps)
+            except RuntimeError as error:
+                if "Indeterminate" not in str(error):
+                    raise
+                self._restart(window, timestamps)
             estimate = self.solver.calculateEstimate()  # the window only: a few dozen poses
             for key in estimate.keys():
                 self._estimates[key] = estimate.atPose3(key).matrix()
         self._new_factors, self._new_values, self._new_keys = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
+
+    def _restart(self, window: dict[int, float], timestamps: gtsam.FixedLagSmootherKeyTimestampMap) -> None:
+        """A new fixed-lag smoother for one that failed to fold the new factors in: gtsam's marginalisation can
+        raise ``IndeterminateSystemException`` on a graph that is not indeterminate. The poses of the ``window``
+        (key -> time last used) start it at their latest estimates, each held by a prior of
+        ``RESTART_SIGMAS``; then the new factors and values follow as they would have."""
+        params = self.solver.params()
+        self.solver = gtsam.IncrementalFixedLagSmoother(float(self.config.window), params)
+        held, values, times = gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
+        for key, time in window.items():
+            pose = gtsam.Pose3(self._estimates[key])
+            held.add(gtsam.PriorFactorPose3(key, pose, gtsam.noiseModel.Diagonal.Sigmas(RESTART_SIGMAS)))
+            values.insert(key, pose)
+            times.insert((key, time))
+        self.solver.update(held, values, times)
+        self.solver.update(self._new_factors, self._new_values, timestamps)
 
     def refine(self, iterations: int = 3) -> None:
         """Extra ISAM2 iterations with no new factors (relinearises what moved beyond the threshold)."""

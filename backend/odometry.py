@@ -42,7 +42,8 @@ from deepslam.frontend.tracking import Tracker, Tracks
 from deepslam.geometry import rotation_angle, vector_angle
 from deepslam.interrupts import checkpoint
 
-BUNDLE_GAIN = 10.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
+BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
+ADJUSTED_AGREEMENT = (3.0, 0.5)  # ... if within this many degrees and this share of its length of the graph's
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
 
 
@@ -372,14 +373,22 @@ class Odometry:
 
     def _add_adjusted(self, k: int) -> None:
         """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe
-        before it in the map, ``BUNDLE_GAIN`` times surer than a measurement from as many landmarks."""
+        before it in the map, ``BUNDLE_GAIN`` times surer than a measurement from as many landmarks, unless it
+        contradicts the graph (``ADJUSTED_AGREEMENT``: a window that adjusted itself away from its measurements)."""
         before, keyframe = self.map.keyframes[-2:]
         T = np.linalg.inv(before.T_world_cam) @ keyframe.T_world_cam
         seen = int(np.isin(keyframe.ids, self.map.points()[0]).sum())
         sigmas = measurement_sigmas(seen, 1.0, float(np.linalg.norm(T[:3, 3]))) / BUNDLE_GAIN
-        if self.graph.in_window(before.index):
+        if self.graph.in_window(before.index) and self._agrees(before.index, k, T):
             self.graph.add_between(before.index, k, T, sigmas)
             self.graph.update(keep=[before.index, k])
+
+    def _agrees(self, i: int, j: int, T: np.ndarray) -> bool:
+        """Whether ``T`` (4, 4), frame j seen from frame i, lies within ``ADJUSTED_AGREEMENT`` of the graph's."""
+        G = np.linalg.inv(self.graph.pose(i)) @ self.graph.pose(j)
+        turn_deg, share = ADJUSTED_AGREEMENT
+        moved = np.linalg.norm(T[:3, 3] - G[:3, 3]) <= share * max(np.linalg.norm(G[:3, 3]), 1e-9)
+        return moved and np.degrees(rotation_angle(G[:3, :3].T @ T[:3, :3])) <= turn_deg
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
         """Median motion (pixels) of the tracks shared by frames i and j."""

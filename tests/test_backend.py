@@ -483,3 +483,34 @@ def test_a_pose_from_fewer_pairs_than_the_minimum_is_not_trusted(rng):
 def _project(T_world_cam, X):
     """Pixels (N, 2) of world points X (N, 3) seen from ``T_world_cam`` (4, 4) with the tests' K."""
     return project(transform(invert(T_world_cam), X), K)[0]
+
+
+def test_a_window_whose_marginalisation_fails_starts_again_from_its_estimates():
+    graph = PoseGraph(np.eye(4), GraphConfig(window=5))
+    step = pose(np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    sigmas = np.array([0.01] * 3 + [0.05] * 3)
+    for key in range(1, 8):
+        graph.add_pose(key, graph.pose(key - 1) @ step)
+        graph.add_between(key - 1, key, step, sigmas)
+        graph.update()
+
+    class Failing:  # gtsam's fixed-lag smoother, failing once as it does on some marginalisations
+        def __init__(self, solver):
+            self.solver = solver
+
+        def update(self, *args):
+            raise RuntimeError("Indeterminate linear system detected while working near variable 8")
+
+        def __getattr__(self, name):
+            return getattr(self.solver, name)
+
+    graph.solver = Failing(graph.solver)
+    graph.add_pose(8, graph.pose(7) @ step)
+    graph.add_between(7, 8, step, sigmas)
+    graph.update()
+    assert not isinstance(graph.solver, Failing)  # a new smoother took over
+    assert np.allclose(graph.pose(8)[:3, 3], [8.0, 0.0, 0.0], atol=1e-6)
+    graph.add_pose(9, graph.pose(8) @ step)
+    graph.add_between(8, 9, step, sigmas)
+    graph.update()
+    assert np.allclose(graph.poses()[:, 0, 3], np.arange(10.0), atol=1e-6)

@@ -5,7 +5,7 @@ import pytest
 
 from deepslam.backend import drift
 from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
-from deepslam.backend.evaluation.runs import simulated_frames
+from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.evaluation.truth import run_pipeline
 from deepslam.backend.mapping import Keyframe, LocalMap, project
 from deepslam.backend.pipeline import Pipeline
@@ -103,6 +103,16 @@ def test_scale_map_follows_a_cluttered_world_with_the_first_baselines_scale():
     assert started < 15 and not any(r.lost for r in results[started:])  # (two-view poses may be ambiguous before)
     assert sum(r.relative.model == "pnp" for r in results[started:]) > 0.9 * (len(results) - started)
     assert pipeline.odometry.map.started and len(pipeline.odometry.map.keyframes) <= MapConfig().window
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("world", ["room", "clutter"])
+def test_a_noisy_run_that_makes_a_keyframe_every_frame_keeps_a_solvable_graph(world):
+    # classical tracks at noise 0.5 thin the map every frame: each keyframe's adjusted pose joins the graph
+    # (these two runs once ended in gtsam's IndeterminateSystemException)
+    scenario = Scenario(ScenarioConfig(world=world, trajectory="circle", frames=60, seed=2, noise=0.5))
+    output = run_frames(simulated_frames(scenario), PipelineConfig(TrackerConfig("classical")), progress=False)
+    assert np.all(np.isfinite(output.estimate)) and np.all(np.isfinite(output.pipeline.trajectory()))
 
 
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():

@@ -66,7 +66,8 @@ class DriftComparison(Result):
     def lines(self) -> list[str]:
         return table_lines(self.logs) + [
             f"ATE: RMSE of positions after SE(3) / Sim(3) alignment (m); RPE: mean over frame pairs {self.delta} apart "
-            "(m, deg); final: position error at the end, % of the true path"
+            "(m, deg); final: position error at the end, % of the true path; scale dr(ift): estimated over true path "
+            "length, last quarter against first"
         ]
 
     def plots(self, out: Path) -> list[Path]:
@@ -76,14 +77,15 @@ class DriftComparison(Result):
 def table_lines(results: dict[str, dict]) -> list[str]:
     header = (
         f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE m':>8} {'RPE deg':>8} "
-        f"{'final %':>8} {'path m':>7} {'lost':>5}"
+        f"{'final %':>8} {'scale dr':>8} {'path m':>7} {'lost':>5}"
     )
     rows = [header]
     for path, r in results.items():
         rows.append(
             f"{Path(path).name[-28:]:<28} {r['frontend']:<9} {r['scale']:<6} "
             f"{r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
-            f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} {r['path_length']:>7.2f} "
+            f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} "
+            f"{r.get('scale_drift', float('nan')):>8.3f} {r['path_length']:>7.2f} "
             f"{r['lost_frames'] if r['lost_frames'] >= 0 else '?':>5}"
         )
     return rows
