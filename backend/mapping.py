@@ -25,6 +25,7 @@ import numpy as np
 from deepslam.backend.config import MapConfig
 
 PNP_ITERATIONS = 200  # PnP RANSAC's iterations
+FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyframe (a hard constraint would need QR)
 
 
 @dataclass
@@ -227,7 +228,7 @@ class LocalMap:
         for position, keyframe in enumerate(self.keyframes):
             values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
         first, second = (gtsam.symbol("x", position) for position in (0, 1))
-        graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), gtsam.noiseModel.Constrained.All(6)))
+        graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
         distance = np.linalg.norm(self.keyframes[1].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
         graph.add(
             gtsam.RangeFactorPose3(
