@@ -19,14 +19,22 @@ deepslam eval detector --out docs/eval --jobs "$JOBS" \
 deepslam eval detector --out docs/eval/detector_L --jobs "$JOBS" --per-category 300 --sweep-per-category 10 \
   --detectors MagicPointL
 deepslam eval warp --out docs/eval --jobs "$JOBS"
-# the pipeline sweep on the circle without lighting changes (the full default sweep: drop those two options)
-deepslam eval pipeline --out docs/eval --jobs "$JOBS" --trajectories circle --lighting 0
-deepslam eval pipeline --out docs/eval/pipeline_lighting --jobs "$JOBS" --trajectories circle --lighting 0.3
-deepslam eval pipeline --out docs/eval/pipeline_paths --jobs "$JOBS" --trajectories figure8 line random --lighting 0
-deepslam eval pipeline --out docs/eval/pipeline_paths_lighting --jobs "$JOBS" --trajectories figure8 line random \
+# the pipeline sweep of the plane and the room on the circle without lighting changes (--scale gt)
+deepslam eval pipeline --out docs/eval --jobs "$JOBS" --worlds plane room --trajectories circle --lighting 0
+deepslam eval pipeline --out docs/eval/pipeline_lighting --jobs "$JOBS" --worlds plane room --trajectories circle \
   --lighting 0.3
-deepslam eval pipeline --out docs/eval/pipeline_S --jobs "$JOBS" --trajectories circle --lighting 0 \
+deepslam eval pipeline --out docs/eval/pipeline_paths --jobs "$JOBS" --worlds plane room \
+  --trajectories figure8 line random --lighting 0
+deepslam eval pipeline --out docs/eval/pipeline_paths_lighting --jobs "$JOBS" --worlds plane room \
+  --trajectories figure8 line random --lighting 0.3
+deepslam eval pipeline --out docs/eval/pipeline_S --jobs "$JOBS" --worlds plane room --trajectories circle --lighting 0 \
   --frontends magic --detector S
+# the local map (--scale map) in all three worlds, beside the same runs with true step lengths, 3 seeds
+MAP="--worlds plane room clutter --trajectories circle forward --noise 0 0.5 --lighting 0 --seeds 3"
+deepslam eval pipeline --out docs/eval/pipeline_map --jobs "$JOBS" $MAP --scale map
+deepslam eval pipeline --out docs/eval/pipeline_map_gt --jobs "$JOBS" $MAP --scale gt
+deepslam eval pipeline --out docs/eval/pipeline_map_paths --jobs "$JOBS" --worlds plane room \
+  --trajectories figure8 line random --noise 0 0.5 --lighting 0 --seeds 3 --scale map
 # timings, one process at a time
 deepslam bench detector --out docs/eval
 deepslam bench warp --out docs/eval
