@@ -228,7 +228,8 @@ class LocalMap:
         for position, keyframe in enumerate(self.keyframes):
             values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
         first, second = (gtsam.symbol("x", position) for position in (0, 1))
-        graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
+        held = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
+        graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), held))
         distance = np.linalg.norm(self.keyframes[1].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
         graph.add(
             gtsam.RangeFactorPose3(
