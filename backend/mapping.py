@@ -23,6 +23,7 @@ import gtsam
 import numpy as np
 
 from deepslam.backend.config import MapConfig
+from deepslam.geometry import vector_angle
 
 PNP_ITERATIONS = 200  # PnP RANSAC's iterations
 FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyframe (a hard constraint would need QR)
@@ -111,6 +112,10 @@ class LocalMap:
         ids = np.fromiter(self.landmarks, np.int64, len(self.landmarks))
         return ids, np.array([self.landmarks[i] for i in ids]).reshape(-1, 3)
 
+    def known(self, ids: np.ndarray) -> np.ndarray:
+        """Which of the track ``ids`` (N,) are landmarks (N,) bool."""
+        return np.fromiter((int(i) in self.landmarks for i in ids), bool, len(ids))
+
     def points_of(self, ids: np.ndarray) -> np.ndarray:
         """The world points (N, 3) of the landmarks ``ids`` (N,)."""
         return np.array([self.landmarks[int(i)] for i in ids]).reshape(-1, 3)
@@ -132,11 +137,11 @@ class LocalMap:
         """The pose of a frame whose tracks ``ids`` (N,) were seen at ``points`` (N, 2): PnP with RANSAC on those
         that are landmarks, refined by Levenberg-Marquardt on its inliers (motion only); ``guess`` (4, 4): the
         pose expected. The returned ids are the tracks that are landmarks."""
-        known = np.array([i in self.landmarks for i in ids], bool) if len(ids) else np.zeros(0, bool)
+        known = self.known(ids)
         ids, points = ids[known], np.asarray(points, np.float64)[known]
         if len(ids) < self.config.min_located:
             return Location(None, ids, np.zeros(len(ids), bool), f"{len(ids)} landmarks in view")
-        world = np.array([self.landmarks[i] for i in ids])
+        world = self.points_of(ids)
         rvec, tvec = _pnp_guess(guess)
         found, rvec, tvec, chosen = cv2.solvePnPRansac(
             world, points, K, None, rvec, tvec, useExtrinsicGuess=True, iterationsCount=PNP_ITERATIONS,
@@ -171,7 +176,7 @@ class LocalMap:
         length; default ``min_triangulation_px``)."""
         made, min_px = 0, self.config.min_triangulation_px if min_px is None else min_px
         for older in self.keyframes:
-            new = np.array([i not in self.landmarks for i in keyframe.ids], bool)
+            new = ~self.known(keyframe.ids)
             _, a, b = np.intersect1d(older.ids, keyframe.ids[new], return_indices=True)
             if len(a) == 0:
                 continue
@@ -182,7 +187,8 @@ class LocalMap:
             with np.errstate(divide="ignore", invalid="ignore"):
                 world = (homogeneous[:3] / homogeneous[3]).T
             good = np.all(np.isfinite(world), axis=1) & self._well_seen(world, (older, a), (keyframe, b))
-            good &= np.radians(self._angle_deg(world, older, keyframe)) * keyframe.K[0, 0] >= min_px
+            rays = [world - view.T_world_cam[:3, 3] for view in (older, keyframe)]
+            good &= vector_angle(*rays) * keyframe.K[0, 0] >= min_px  # radians x focal length: pixels
             for track, point in zip(keyframe.ids[b[good]], world[good], strict=True):
                 self.landmarks[int(track)] = point
             made += int(good.sum())
@@ -198,13 +204,6 @@ class LocalMap:
                 np.linalg.norm(pixels - keyframe.points[index], axis=1) < self.config.max_reprojection_px
             )
         return good
-
-    @staticmethod
-    def _angle_deg(world: np.ndarray, a: Keyframe, b: Keyframe) -> np.ndarray:
-        """Degrees (N,) between the rays from the two keyframes' centres to each world point (N, 3)."""
-        rays = [world - keyframe.T_world_cam[:3, 3] for keyframe in (a, b)]
-        cosine = np.sum(rays[0] * rays[1], 1) / (np.linalg.norm(rays[0], axis=1) * np.linalg.norm(rays[1], axis=1))
-        return np.degrees(np.arccos(np.clip(np.nan_to_num(cosine, nan=1.0), -1, 1)))
 
     def _observations(self) -> dict[int, list[tuple[int, np.ndarray]]]:
         """Landmark id -> [(window position, pixel (2,))] over the window's keyframes."""
@@ -264,8 +263,8 @@ class LocalMap:
         """Drop the keyframes' observations behind the camera or farther than ``max_reprojection_px`` from their
         landmark's projection."""
         for keyframe in self.keyframes:
-            known = np.array([int(i) in self.landmarks for i in keyframe.ids], bool)
-            world = np.array([self.landmarks[int(i)] for i in keyframe.ids[known]]).reshape(-1, 3)
+            known = self.known(keyframe.ids)
+            world = self.points_of(keyframe.ids[known])
             pixels, depth = project(keyframe.T_world_cam, keyframe.K, world)
             bad = (depth <= 0) | (
                 np.linalg.norm(pixels - keyframe.points[known], axis=1) > self.config.max_reprojection_px

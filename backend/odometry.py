@@ -19,9 +19,8 @@ distance taken as the unit of length: the trajectory up to scale.
 each frame is located in that local map by PnP against the current keyframe's landmarks, every keyframe adds
 landmarks and a local bundle adjustment, and the map carries the scale of its first baseline: its true length
 where the caller passes ``step_lengths`` (an input with truth), else the unit (about one keyframe's motion).
-Until the map starts, two-view poses measured from the first keyframe take their lengths from that same source
-(they are the first baseline growing); where PnP finds no pose later, the two-view pose takes its length from
-the motion so far (constant velocity).
+Until the first map starts (at most ``map.start_within`` frames), two-view poses take their lengths from that
+same source; later, where PnP finds no pose or no map holds the keyframe, in proportion to their track motion.
 """
 
 from __future__ import annotations
@@ -180,8 +179,8 @@ class Odometry:
         tracks_kf, (frame_k, tracks_k) = self.history[kf][1], self.history[k]
         pairs, points = self.tracker.confirm(tracks_kf, tracks_k, shared_tracks(tracks_kf, tracks_k))
         ids = tracks_k.ids[pairs[:, 1]]
-        landmark = np.isin(ids, self.map.points()[0])
-        self.shared = int(np.isin(tracks_k.ids, self.map.points()[0]).sum())
+        landmark = self.map.known(ids)
+        self.shared = int(self.map.known(tracks_k.ids).sum())
         pairs, points = pairs[landmark], points[landmark]
         location = self.map.locate(ids[landmark], points, frame_k.K, self.graph.pose(k - 1))
         self.located = int(location.inliers.sum())
@@ -256,8 +255,9 @@ class Odometry:
             return FrameResult(0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True)
         checkpoint()  # Ctrl-C and SIGTERM take effect between the stages of a frame
         kf = self._reference(k, tracks)
-        rel, T, pairs, measured_points = self._locate(kf, k) if self._map_holds(kf) else self._measure(kf, k)
-        if not rel.ok and self._map_holds(kf):  # too few landmarks: the two-view pose, at the map's speed
+        mapped = self._map_holds(kf)
+        rel, T, pairs, measured_points = self._locate(kf, k) if mapped else self._measure(kf, k)
+        if mapped and not rel.ok:  # too few landmarks: the two-view pose
             rel, T, pairs, measured_points = self._measure(kf, k)
         measured = time.perf_counter()
         checkpoint()
@@ -377,7 +377,7 @@ class Odometry:
         contradicts the graph (``ADJUSTED_AGREEMENT``: a window that adjusted itself away from its measurements)."""
         before, keyframe = self.map.keyframes[-2:]
         T = np.linalg.inv(before.T_world_cam) @ keyframe.T_world_cam
-        seen = int(np.isin(keyframe.ids, self.map.points()[0]).sum())
+        seen = int(self.map.known(keyframe.ids).sum())
         sigmas = measurement_sigmas(seen, 1.0, float(np.linalg.norm(T[:3, 3]))) / BUNDLE_GAIN
         if self.graph.in_window(before.index) and self._agrees(before.index, k, T):
             self.graph.add_between(before.index, k, T, sigmas)

@@ -49,10 +49,10 @@ class GroundTruth:
 
     def step_length(self, i: int, j: int) -> float:
         """The true distance (m) between the cameras of frames i and j."""
-        a, b = self.poses[i], self.poses[j]
-        if a is None or b is None:
+        length = self.known_step_length(i, j)
+        if length is None:
             raise InputError("scale 'gt' needs ground-truth poses in every frame")
-        return float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
+        return length
 
     def known_step_length(self, i: int, j: int) -> float | None:
         """The true distance (m) between the cameras of frames i and j, None where either has no truth."""
