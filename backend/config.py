@@ -37,8 +37,9 @@ class MapConfig:
         6.0  # rays meeting at a smaller angle (in pixels: radians x focal length) make no landmark
     )
     min_initial_landmarks: int = 30  # the map starts once two keyframes triangulate this many landmarks ...
-    min_initial_px: float = 10.0  # ... seen from at least this angle apart (pixels)
-    start_within: int = 20  # frames the first map may take to start: until then lengths come from the scale source
+    min_initial_px: float = 10.0  # ... seen from at least this angle apart (pixels) ...
+    max_start_deg: float = 3.0  # ... and the direction between the two is known to this (1 sigma, degrees)
+    start_within: int = 20  # frames before the first map whose lengths come from the truth (where known)
     coverage: float = (
         0.7  # a frame locating fewer than this share of what the first frame after its keyframe located ...
     )
@@ -52,7 +53,13 @@ class MapConfig:
                 f"the map's window must hold at least 2 keyframes, PnP at least 6 landmarks and the first map at "
                 f"least as many, got {self.window}, {self.min_located}, {self.min_initial_landmarks}"
             )
-        thresholds = (self.pnp_px, self.max_reprojection_px, self.min_triangulation_px, self.min_initial_px)
+        thresholds = (
+            self.pnp_px,
+            self.max_reprojection_px,
+            self.min_triangulation_px,
+            self.min_initial_px,
+            self.max_start_deg,
+        )
         if not (min(thresholds) > 0 and 0 < self.coverage <= 1 and 0 <= self.min_located_share <= 1):
             raise InputError(
                 f"the map's pixel thresholds must be positive and its coverage in (0, 1], got {thresholds}, "

@@ -9,7 +9,8 @@ chooses it: a true length where the input has one, else 1), and the map carries 
 Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors with a
 Huber loss: the window's keyframe poses and the landmarks two of them observe; the window's oldest keyframe is
 held fixed and its distance to the next one kept (a ``RangeFactorPose3``): gauge and scale, and the map's
-first two keyframes are adjusted as soon as it starts. Observations behind a camera or farther than
+first two keyframes are adjusted as soon as it starts, which it does only once their marginal covariance
+determines the direction between them. Observations behind a camera or farther than
 ``max_reprojection_px`` from their landmark's projection afterwards are dropped, as are landmarks left with
 fewer than two; landmarks that no keyframe of the window observes are dropped with the keyframes that leave it.
 """
@@ -122,15 +123,20 @@ class LocalMap:
 
     def start(self, first: Keyframe, second: Keyframe) -> int:
         """Triangulate the tracks two keyframes share (their poses already at the map's scale); the map starts
-        if ``min_initial_landmarks`` were seen from ``min_initial_px`` apart. Returns how many (0 when it did not
-        start)."""
+        if ``min_initial_landmarks`` were seen from ``min_initial_px`` apart and, after the two are adjusted, the
+        direction between them is known to ``max_start_deg`` (``_direction_sigma_deg``: a short or noisy
+        baseline fits its points just as well turned tens of degrees, and a map started there is off for good).
+        Returns how many (0 when it did not start)."""
         self.landmarks, self.keyframes = {}, [first]
         made = self._triangulate(second, self.config.min_initial_px)
         if made < self.config.min_initial_landmarks:
             self.landmarks, self.keyframes = {}, []
             return 0
         self.keyframes.append(second)
-        self.adjust()
+        adjusted = self.adjust()
+        if adjusted is None or _direction_sigma_deg(*adjusted, first, second) > self.config.max_start_deg:
+            self.landmarks, self.keyframes = {}, []
+            return 0
         return made
 
     def locate(self, ids: np.ndarray, points: np.ndarray, K: np.ndarray, guess: np.ndarray) -> Location:
@@ -214,12 +220,13 @@ class LocalMap:
                     seen.setdefault(int(track), []).append((position, pixel))
         return seen
 
-    def adjust(self) -> None:
+    def adjust(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
         """Bundle adjustment of the window (the oldest keyframe fixed, its distance to the next kept), then drop
-        observations that do not fit (``_drop_outliers``)."""
+        observations that do not fit (``_drop_outliers``). Returns the graph and its solution (None where there
+        was nothing to adjust)."""
         seen = {track: views for track, views in self._observations().items() if len(views) >= 2}
         if len(self.keyframes) < 2 or not seen:
-            return
+            return None
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         pixel_noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
@@ -258,6 +265,7 @@ class LocalMap:
         for track in seen:
             self.landmarks[track] = result.atPoint3(gtsam.symbol("l", track))
         self._drop_outliers()
+        return graph, result
 
     def _drop_outliers(self) -> None:
         """Drop the keyframes' observations behind the camera or farther than ``max_reprojection_px`` from their
@@ -277,3 +285,24 @@ class LocalMap:
         """Drop the landmarks no keyframe of the window observes."""
         observed = set(np.concatenate([k.ids for k in self.keyframes]).tolist())
         self.landmarks = {track: point for track, point in self.landmarks.items() if track in observed}
+
+
+def _direction_sigma_deg(
+    graph: gtsam.NonlinearFactorGraph, result: gtsam.Values, first: Keyframe, second: Keyframe
+) -> float:
+    """How uncertain (1 sigma, degrees) the direction from keyframe ``first`` to ``second`` (window positions 0
+    and 1) is after their bundle adjustment ``graph`` solved as ``result``: the largest spread of the second
+    keyframe's position across that direction (its marginal covariance, scaled by the mean squared residual of
+    an observation, so that it holds for any pixel noise) over the baseline's length; infinite where gtsam
+    cannot tell (an indeterminate system)."""
+    try:
+        covariance = gtsam.Marginals(graph, result).marginalCovariance(gtsam.symbol("x", 1))[3:, 3:]
+    except RuntimeError:
+        return float("inf")
+    # gtsam's pose tangent holds the position in the camera's own frame: the baseline too
+    baseline = second.T_world_cam[:3, :3].T @ (second.T_world_cam[:3, 3] - first.T_world_cam[:3, 3])
+    length = float(np.linalg.norm(baseline))
+    across = np.eye(3) - np.outer(baseline, baseline) / max(length**2, 1e-24)
+    spread = np.linalg.eigvalsh(across @ covariance @ across).max()
+    residual = 2 * graph.error(result) / max(graph.size(), 1)
+    return float(np.degrees(np.sqrt(max(spread * residual, 0.0)) / max(length, 1e-12)))

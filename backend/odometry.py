@@ -19,8 +19,8 @@ distance taken as the unit of length: the trajectory up to scale.
 each frame is located in that local map by PnP against the current keyframe's landmarks, every keyframe adds
 landmarks and a local bundle adjustment, and the map carries the scale of its first baseline: its true length
 where the caller passes ``step_lengths`` (an input with truth), else the unit (about one keyframe's motion).
-Until the first map starts (at most ``map.start_within`` frames), two-view poses take their lengths from that
-same source; later, where PnP finds no pose or no map holds the keyframe, in proportion to their track motion.
+Two-view poses before the first map take their lengths from that same source for at most ``map.start_within``
+frames; later, and where PnP finds no pose or no map holds the keyframe, in proportion to their track motion.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from functools import partial
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -147,10 +147,10 @@ class Odometry:
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
         self.map = LocalMap(config.map) if config.scale == "map" else None
-        self.first_baseline = config.scale == "map"  # no map has started yet (lengths from the first baseline's source)
+        self.first_baseline = config.scale == "map"  # lengths from the first baseline's source (no map yet)
+        self.first_map = config.scale == "map"  # no map has started yet (its baseline takes the true length)
         self.length_per_px = 1.0 / config.keyframe_parallax  # a two-view step's length per pixel of track motion
         self.located = 0  # landmarks the last frame was located with (map only)
-        self.shared = 0  # tracks the last measurement could use: shared with its keyframe, or landmarks of the map
         self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
         self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
 
@@ -180,7 +180,6 @@ class Odometry:
         pairs, points = self.tracker.confirm(tracks_kf, tracks_k, shared_tracks(tracks_kf, tracks_k))
         ids = tracks_k.ids[pairs[:, 1]]
         landmark = self.map.known(ids)
-        self.shared = int(self.map.known(tracks_k.ids).sum())
         pairs, points = pairs[landmark], points[landmark]
         location = self.map.locate(ids[landmark], points, frame_k.K, self.graph.pose(k - 1))
         self.located = int(location.inliers.sum())
@@ -205,9 +204,7 @@ class Odometry:
         """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences (K, 2),
         frame j's points of them (K, 2))."""
         tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
-        shared = shared_tracks(tracks_i, tracks_j)
-        self.shared = len(shared)
-        pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared)
+        pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
         p1 = tracks_i.points[pairs[:, 0]]
         R_world_i = self.graph.pose(i)[:3, :3]
         normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
@@ -259,7 +256,7 @@ class Odometry:
         rel, T, pairs, measured_points = self._locate(kf, k) if mapped else self._measure(kf, k)
         if mapped and not rel.ok:  # too few landmarks: the two-view pose
             rel, T, pairs, measured_points = self._measure(kf, k)
-        measured = time.perf_counter()
+        measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
         T = self._add_measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
         self._update_keyframes(k, kf, rel, T, len(pairs))
@@ -278,8 +275,16 @@ class Odometry:
         landmarks, map_points = self._map_state(self.keyframe == k)
         return FrameResult(
             k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
-            self.shared, map_points,
+            shared, map_points,
         )  # fmt: skip
+
+    def _shared(self, kf: int, k: int, rel: relpose.RelativePose) -> int:
+        """The tracks of frame k its pose could be measured from: landmarks of the map where it was located in
+        the map, else those it shares with keyframe kf."""
+        tracks = self.history[k][1]
+        if rel.model == "pnp":
+            return int(self.map.known(tracks.ids).sum())
+        return len(shared_tracks(self.history[kf][1], tracks))
 
     def _map_state(self, changed: bool) -> tuple[int, np.ndarray | None]:
         """The map's landmark count, and its points (M, 3) if it ``changed`` (else None); 0 and None without one."""
@@ -362,14 +367,50 @@ class Odometry:
     def _starts_map(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray) -> bool:
         """Whether a map starts (again) from the current keyframe kf and frame k, measured from it as ``T``
         (4, 4): tried at every frame while there is none, so that it starts as soon as the two triangulate
-        enough landmarks."""
+        enough landmarks with a well-determined baseline (``LocalMap.start``). Where the measurement took a
+        homography (a dominant plane, such as a far wall, in a scene that need not be one) the essential
+        matrix's pose is tried too. The first map's baseline takes its true length where the input has one."""
         if self.map is None or self._map_holds(kf) or kf != self.keyframe or not rel.ok or rel.model == "static":
             return False
         origin = self.graph.pose(kf)
-        if not self.map.start(self._keyframe(kf, origin), self._keyframe(k, origin @ T)):
-            return False
-        self._add_adjusted(k)
-        return True
+        for candidate in self._start_poses(kf, k, rel, T):
+            baseline = self._first_baseline(kf, k, candidate)
+            if self.map.start(self._keyframe(kf, origin), self._keyframe(k, origin @ baseline)):
+                self.first_map = False
+                self._add_adjusted(k)
+                return True
+        return False
+
+    def _start_poses(self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray) -> Iterator[np.ndarray]:
+        """The poses (4, 4) of frame k seen from keyframe kf a map may start from: the measured ``T``, then, where
+        that was a homography's, the essential matrix's (computed only if asked for)."""
+        yield T
+        if rel.model == "homography":
+            general = self._general_pose(kf, k, T)
+            if general is not None:
+                yield general
+
+    def _general_pose(self, kf: int, k: int, T: np.ndarray) -> np.ndarray | None:
+        """Frame k seen from keyframe kf (4, 4) by the essential matrix of their confirmed pairs, as long as
+        ``T``, or None where it finds no translation."""
+        tracks_kf, (frame_k, tracks_k) = self.history[kf][1], self.history[k]
+        pairs, points = self.tracker.confirm(tracks_kf, tracks_k, shared_tracks(tracks_kf, tracks_k))
+        rel = relpose.estimate(tracks_kf.points[pairs[:, 0]], points, frame_k.K, "essential", size=frame_k.shape)
+        if not rel.ok or rel.rotation_only:
+            return None
+        general = rel.T_c1_c2.copy()
+        general[:3, 3] *= np.linalg.norm(T[:3, 3]) / max(np.linalg.norm(general[:3, 3]), 1e-12)
+        return general
+
+    def _first_baseline(self, kf: int, k: int, T: np.ndarray) -> np.ndarray:
+        """``T`` (4, 4), frame k seen from keyframe kf, with the true length of the first map's baseline where
+        the input knows it (the scale every later map carries), else as it is."""
+        known = self.step_lengths(kf, k) if self.first_map and self.step_lengths is not None else None
+        if known is None or np.linalg.norm(T[:3, 3]) == 0:
+            return T
+        scaled = T.copy()
+        scaled[:3, 3] *= known / np.linalg.norm(T[:3, 3])
+        return scaled
 
     def _add_adjusted(self, k: int) -> None:
         """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe

@@ -445,6 +445,18 @@ def test_poses_are_measured_from_the_pairs_the_front_end_confirms():
     assert keyframes >= 1
 
 
+def test_a_frames_inliers_are_a_share_of_the_tracks_it_shares_with_its_own_reference():
+    # the extra factor to the keyframe before once left its count of shared tracks in the frame's result
+    scenario = Scenario(ScenarioConfig(world="room", trajectory="circle", frames=40, seed=1))
+    config = PipelineConfig(TrackerConfig("oracle"), OdometryConfig(scale="gt"))
+    linked = 0
+    for pipeline, _, result in run_pipeline(simulated_frames(scenario), config):
+        if result.index:
+            assert result.relative.inliers.sum() <= result.shared
+            linked += pipeline.odometry.previous_keyframe not in (None, result.reference)
+    assert linked > 0  # frames with the extra factor were among them
+
+
 def test_pipeline_bench_reports_the_median_round_and_the_spread_of_rounds():
     bench = bench_pipeline(6, tracker_config=TrackerConfig(frontend="oracle"), rounds=3)
     timings = bench.timings

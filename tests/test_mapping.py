@@ -1,5 +1,7 @@
 """The local map (triangulation, PnP, bundle adjustment, culling) and scale "map"."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -16,9 +18,9 @@ from deepslam.sim.scenario import Scenario, ScenarioConfig
 K = intrinsics((120, 160))
 
 
-def _world(rng, count=200):
-    """Points (N, 3) at 2-8 m in front of the origin, spread across the view."""
-    depth = rng.uniform(2, 8, count)
+def _world(rng, count=200, nearest=2.0, farthest=8.0):
+    """Points (N, 3) at ``nearest``-``farthest`` m in front of the origin, spread across the view."""
+    depth = rng.uniform(nearest, farthest, count)
     return np.c_[rng.uniform(-0.6, 0.6, (count, 2)) * depth[:, None], depth]
 
 
@@ -65,6 +67,18 @@ def test_a_map_does_not_start_from_too_little_parallax_and_pnp_needs_enough_land
     few = np.array(list(local_map.landmarks)[: MapConfig().min_located - 1])
     location = local_map.locate(few, project(np.eye(4), K, world[few])[0], K, np.eye(4))
     assert location.T_world_cam is None and "landmarks in view" in location.reason
+
+
+def test_a_map_waits_for_a_baseline_whose_direction_its_landmarks_determine(rng):
+    # points 1-3 m away seen 0.15 m apart with 2 px of noise: landmarks enough, from parallax enough, but the
+    # baseline's direction is uncertain by a few degrees (noisy pairs like these started maps 20-85 deg off)
+    world = _world(rng, nearest=1.0, farthest=3.0)
+    close = [_keyframe(i, _sideways(x), world, rng, noise=2.0) for i, x in enumerate((0.0, 0.15))]
+    lenient = LocalMap(MapConfig(max_start_deg=90.0))
+    assert lenient.start(*(replace(view, T_world_cam=view.T_world_cam.copy()) for view in close)) > 30
+    assert LocalMap().start(*close) == 0
+    apart = [_keyframe(i, _sideways(x), world, rng, noise=2.0) for i, x in enumerate((0.0, 0.5))]
+    assert LocalMap().start(*apart) > 30
 
 
 def test_bundle_adjustment_drops_observations_that_do_not_fit(rng):
