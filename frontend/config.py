@@ -12,6 +12,7 @@ from deepslam.errors import InputError
 
 POINT_BUDGET = 150  # points a front-end reports at most, by default (the oracle's too)
 CARRY_FRAMES = 20  # frames a track the detector misses is carried on (``MagicTracker.max_age``)
+FOLLOW_RADIUS = 1.5  # px: a followed track snaps to a detection this close to where its patch aligned
 TOP_UP_MIN_POINTS, TOP_UP_ENOUGH_POINTS = 40, 80  # S is topped up from below the first until it finds the second
 BENCH_REPEATS = 100  # timed repetitions of a network's forward pass in its benchmark; the median is reported
 Frontend = Literal["magic", "classical", "oracle"]
@@ -92,6 +93,15 @@ class TrackerConfig:
             "homography and aligned to the frame it was last detected in (default: with --method auto or homography)"
         },
     )
+    follow: bool = field(
+        default=False,
+        metadata={
+            "help": "find each track where Lucas-Kanade aligns its patch of the previous frame, starting from where "
+            f"MagicWarp's homography carries it, and snap it to a detection within {FOLLOW_RADIUS:g} px of that, so "
+            "that parallax does not move it onto a neighbour's detection (default: snapped where the homography "
+            "carries it, as in the paper; needs --polish)"
+        },
+    )
     ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
     polish: bool = field(
         default=True,
@@ -122,6 +132,10 @@ class TrackerConfig:
         default="cpu", metadata={"help": "where the magic front-end's networks run: cpu, cuda, or auto"}
     )
     budget: int = POINT_BUDGET  # points a front-end reports at most
+
+    def __post_init__(self):
+        if self.follow and not self.polish:
+            raise InputError("following tracks (--follow) aligns the images polishing keeps: drop --no-polish")
 
 
 Subpixel = Literal["none", "parabola", "centroid", "smoothed"]

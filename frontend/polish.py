@@ -22,6 +22,8 @@ from deepslam.frontend.config import DEFAULT_POLISH, PolishConfig
 from deepslam.geometry import fit_homography, in_image, warp_points
 
 LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
+FOLLOW_LEVELS = 1  # pyramid levels above the image ``follow`` aligns on: a prediction may be some pixels off
+FOLLOW_RETURN_PX = 1.0  # ``follow``'s forward-backward check (px)
 
 
 def normalise_contrast(image: np.ndarray, sigma: float = PolishConfig.sigma) -> np.ndarray:
@@ -137,3 +139,31 @@ def _lucas_kanade(
     )
     moved = moved.reshape(-1, 2).astype(np.float64)
     return moved, (status.ravel() == 1) & np.all(np.isfinite(moved), axis=1)
+
+
+def follow(
+    previous: np.ndarray,
+    current: np.ndarray,
+    points: np.ndarray,
+    predicted: np.ndarray,
+    window: int = DEFAULT_POLISH.window,
+    max_return: float = FOLLOW_RETURN_PX,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where pyramidal Lucas-Kanade (``window`` px, ``FOLLOW_LEVELS`` levels above the image) aligns the patches of
+    image ``previous`` around ``points`` (N, 2) in image ``current`` (both from ``normalise_contrast``), starting
+    from ``predicted`` (N, 2), where the motion puts them: positions (N, 2) float64 and a mask (N,) of those it
+    found: converged, inside the image and aligning back within ``max_return`` px of their point."""
+    points = np.asarray(points, np.float32).reshape(-1, 1, 2)
+    if len(points) == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    options = dict(
+        winSize=(window, window), maxLevel=FOLLOW_LEVELS, criteria=LK_CRITERIA, flags=cv2.OPTFLOW_USE_INITIAL_FLOW
+    )
+    start = np.asarray(predicted, np.float32).reshape(-1, 1, 2).copy()
+    found, status, _ = cv2.calcOpticalFlowPyrLK(previous, current, points, start, **options)
+    back, status_back, _ = cv2.calcOpticalFlowPyrLK(current, previous, found, points.copy(), **options)
+    found = found.reshape(-1, 2).astype(np.float64)
+    returned = np.linalg.norm((back - points).reshape(-1, 2), axis=1)
+    good = (status.ravel() == 1) & (status_back.ravel() == 1) & np.all(np.isfinite(found), axis=1)
+    good &= (returned < max_return) & in_image(np.nan_to_num(found), current.shape, margin=0.5)
+    return found, good

@@ -2,11 +2,10 @@
 
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
   snapping and one robust homography fit over its pairs and those of the no-motion and constant-motion
-  guesses),
-  nearest-neighbour snapping (optionally a fundamental-matrix RANSAC on top); a track the detector
-  misses is carried on by that homography and aligned to the frame it was last detected in. The pairs a
-  pose is measured from (a frame and its keyframe) are confirmed and polished by ``frontend.polish``
-  (``confirm``).
+  guesses), nearest-neighbour snapping (optionally after Lucas-Kanade followed each track from the previous
+  frame, and a fundamental-matrix RANSAC on top); a track the detector misses is carried on by that
+  homography and aligned to the frame it was last detected in. The pairs a pose is measured from (a frame and
+  its keyframe) are confirmed and polished by ``frontend.polish`` (``confirm``).
 - ``ClassicalTracker``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked), replenished when tracks run low: what a practitioner would build.
 - ``OracleTracker``: the true projections of world landmarks with pixel noise and the same
@@ -27,6 +26,7 @@ from deepslam.frontend.config import (
     CARRY_FRAMES,
     DEFAULT_POLISH,
     DETECTOR_PRESETS,
+    FOLLOW_RADIUS,
     FRONTENDS,
     POINT_BUDGET,
     TOP_UP_ENOUGH_POINTS,
@@ -37,7 +37,7 @@ from deepslam.frontend.config import (
 from deepslam.frontend.magicpoint import MagicPoint
 from deepslam.frontend.magicwarp import MIN_POINTS, MagicWarp, match, refine
 from deepslam.frontend.nets import resolve_device
-from deepslam.frontend.polish import normalise_contrast, polish
+from deepslam.frontend.polish import follow, normalise_contrast, polish
 from deepslam.geometry import in_image, warp_points
 
 
@@ -97,6 +97,16 @@ class Tracker:
         return pairs, current.points[pairs[:, 1]]
 
 
+def _subset_pairs(pairs: np.ndarray, rows: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
+    """``pairs`` (K, 2) of indices into subsets, as indices into the sets: ``rows`` (and ``columns``, where given)
+    hold each subset's indices."""
+    pairs = pairs.copy()
+    pairs[:, 0] = rows[pairs[:, 0]]
+    if columns is not None:
+        pairs[:, 1] = columns[pairs[:, 1]]
+    return pairs
+
+
 def _ransac_filter(pairs: np.ndarray, a: np.ndarray, b: np.ndarray, threshold: float = 1.0) -> np.ndarray:
     """Keep the pairs consistent with one fundamental matrix (MAGSAC); all of them if too few."""
     if len(pairs) < 8:
@@ -118,7 +128,9 @@ class MagicTracker(Tracker):
     ``iterations`` applies MagicWarp iteratively; ``refine`` polishes its H by snapping and a robust
     homography fit over its pairs and those the previous H and the identity snap (``_homography``);
     ``ransac`` adds a fundamental-matrix check; ``polish`` (a ``PolishConfig``, or None for a purely
-    geometric tracker) confirms and polishes the pairs a pose is measured from (``confirm``)."""
+    geometric tracker) confirms and polishes the pairs a pose is measured from (``confirm``); ``follow`` (px,
+    with ``polish``) finds each track where Lucas-Kanade aligns it from the previous frame before snapping
+    (``_snap``)."""
 
     def __init__(
         self,
@@ -132,6 +144,7 @@ class MagicTracker(Tracker):
         carry: bool = True,
         budget: int = POINT_BUDGET,
         polish: PolishConfig | None = DEFAULT_POLISH,
+        follow: float | None = None,
     ):
         super().__init__()
         if iterations < 1 or not max_dist > 0 or max_age < 0 or budget < 1:
@@ -142,6 +155,7 @@ class MagicTracker(Tracker):
         self.detector, self.warp = detector, warp
         self.max_dist, self.iterations, self.ransac, self.max_age = max_dist, iterations, ransac, max_age
         self.refine, self.carry, self.budget, self.polish = refine, carry, budget, polish
+        self.follow = follow if polish is not None else None  # following aligns the frames polishing keeps
         self.detections = np.zeros((0, 2))  # the previous frame's detections, MagicWarp's input
         self.last_homography = np.eye(3)
         self.live = np.zeros((0, 2))  # positions of live tracks (detected or carried)
@@ -172,12 +186,14 @@ class MagicTracker(Tracker):
         detected = warped = time.perf_counter()
         points = detections[:, :2].astype(np.float64)
         pairs = np.zeros((0, 2), np.int64)
+        appearance = normalise_contrast(image, self.polish.sigma) if self.polish else None
         if len(self.live) and len(points):
             if len(self.detections):
                 self.last_homography = self._homography(points, image.shape)
             warped = time.perf_counter()
+            before = self.live
             self.live = warp_points(self.live, self.last_homography)
-            pairs = match(self.live, points, np.eye(3), self.max_dist)
+            pairs = self._snap(before, points, appearance)
             if self.ransac:
                 pairs = _ransac_filter(pairs, self.live, points)
         matched = time.perf_counter()
@@ -193,7 +209,6 @@ class MagicTracker(Tracker):
         missed = np.ones(len(self.live), bool)
         missed[pairs[:, 0]] = False
         keep = missed & (self.live_age < self.max_age)
-        appearance = normalise_contrast(image, self.polish.sigma) if self.polish else None
         continued = int((~fresh).sum())
         reported = keep & self.carry & in_image(self.live, image.shape, margin=0.5)
         if appearance is not None:
@@ -215,6 +230,28 @@ class MagicTracker(Tracker):
         if appearance is not None:
             self.appearances = (self.appearances + [appearance])[-(self.max_age + 1) :]
         return self.previous
+
+    def _snap(self, before: np.ndarray, points: np.ndarray, appearance: np.ndarray | None) -> np.ndarray:
+        """Pairs (K, 2) of live tracks and ``points`` (M, 2), this frame's detections: with ``follow``, each live
+        track is first found where Lucas-Kanade aligns its patch of the previous frame (around ``before`` (N, 2),
+        its position there), starting from where the homography carried it (``self.live``), and snapped to a
+        detection within ``follow`` px of that (``frontend.polish.follow``); the tracks it cannot follow, and
+        all without ``follow``, snap to a detection within ``max_dist`` px of where the homography carried them.
+        Parallax moves a point off the homography's prediction and onto a neighbour's detection; the
+        image does not."""
+        if self.follow is None or appearance is None or not self.appearances:
+            return match(self.live, points, np.eye(3), self.max_dist)
+        found, followed = follow(self.appearances[-1], appearance, before, self.live)
+        self.live[followed] = found[followed]
+        pairs = _subset_pairs(match(self.live[followed], points, np.eye(3), self.follow), np.nonzero(followed)[0])
+        free = np.ones(len(points), bool)
+        free[pairs[:, 1]] = False
+        rest = _subset_pairs(
+            match(self.live[~followed], points[free], np.eye(3), self.max_dist),
+            np.nonzero(~followed)[0],
+            np.nonzero(free)[0],
+        )
+        return np.vstack([pairs, rest])
 
     def _align_carried(self, carried: np.ndarray, appearance: np.ndarray) -> np.ndarray:
         """Move the live tracks ``carried`` (mask (N,)) from where the homography carried them to where
@@ -386,6 +423,7 @@ def make_tracker(config: TrackerConfig, carry_default: bool = True) -> Tracker:
             carry=carry,
             budget=config.budget,
             polish=_polish_config(config),
+            follow=FOLLOW_RADIUS if config.follow else None,
         )
     if config.frontend == "classical":
         return ClassicalTracker(budget=config.budget)

@@ -58,3 +58,13 @@ def test_the_sample_calibration_file_reads_as_a_camera():
 
     camera = Calibration.from_yaml(EXAMPLES / "calibration.yaml", (480, 640))
     assert camera.model == "plumb_bob" and camera.size == (480, 640) and camera.K[0, 0] == 517.3
+
+
+def test_track_consistency_example_finds_followed_tracks_on_their_points_more_often(capsys, monkeypatch):
+    argv = ["track_consistency.py", "--worlds", "clutter", "--seeds", "0", "--frames", "12"]
+    monkeypatch.setattr("sys.argv", argv)
+    runpy.run_path(str(EXAMPLES / "track_consistency.py"), run_name="__main__")
+    row = capsys.readouterr().out.splitlines()[2].split()
+    assert row[:2] == ["clutter", "0"]
+    snapped, followed = float(row[2]), float(row[3])
+    assert 0 < snapped < followed <= 1, row

@@ -436,6 +436,55 @@ def test_the_magic_tracker_keeps_what_polishing_needs_only_when_it_polishes():
     np.testing.assert_array_equal(moved, tracks.points[[1, 0]])
 
 
+def _parallax_pair(rng, shift, parallax, moved):
+    """Two uint8 (120, 160) frames of one texture, the second shifted by ``shift`` (2,), except that the patches
+    around the ``moved`` points (M, 2) of the first lie ``parallax`` (2,) px farther (nearer surfaces)."""
+    texture = _blurred_noise(rng, 2.0)
+    affine = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+    current = cv2.warpAffine(texture, affine, (160, 120), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    for x, y in moved.astype(int):
+        x1, y1 = np.array([x, y]) + (shift + parallax).astype(int)
+        current[y1 - 10 : y1 + 11, x1 - 10 : x1 + 11] = texture[y - 10 : y + 11, x - 10 : x + 11]
+    return texture.astype(np.uint8), current.astype(np.uint8)
+
+
+def test_follow_finds_points_where_the_image_moved_them_and_not_where_it_lost_them():
+    from deepslam.frontend.polish import follow
+
+    rng = np.random.default_rng(5)
+    points = np.stack(np.meshgrid(np.arange(30, 131, 25.0), np.arange(30, 91, 30.0)), -1).reshape(-1, 2)
+    shift, parallax = np.array([3.0, -2.0]), np.array([3.0, 0.0])
+    previous, current = _parallax_pair(rng, shift, parallax, points[:4])
+    found, ok = follow(normalise_contrast(previous), normalise_contrast(current), points, points + shift)
+    assert ok.all()
+    np.testing.assert_allclose(found[:4], points[:4] + shift + parallax, atol=0.1)  # 3 px off the prediction
+    np.testing.assert_allclose(found[4:], points[4:] + shift, atol=0.1)
+    flat = current.copy()
+    flat[:, 80:] = 128  # the right half covered by a plain surface: nothing there to align
+    _, ok = follow(normalise_contrast(previous), normalise_contrast(flat), points, points + shift)
+    assert not ok[points[:, 0] + shift[0] > 90].any() and ok[points[:, 0] + shift[0] < 70].all()
+
+
+def test_a_following_magic_tracker_keeps_a_point_through_parallax_where_snapping_takes_a_neighbour():
+    from deepslam.frontend.tracking import MagicTracker
+
+    rng = np.random.default_rng(6)
+    points = np.stack(np.meshgrid(np.arange(25, 136, 22.0), np.arange(25, 96, 23.0)), -1).reshape(-1, 2)
+    shift, parallax = np.array([2.0, 1.0]), np.array([2.5, 0.0])
+    near = np.arange(4)  # the points of a nearer surface: 2.5 px of parallax against the rest
+    images = _parallax_pair(rng, shift, parallax, points[near])
+    second = points + shift
+    second[near] += parallax
+    decoys = points[near] + shift + [-0.5, 0.0]  # other points, where the homography puts the near ones
+    frames = [points, np.vstack([second, decoys])]
+    for radius, kept in ((None, False), (1.5, True)):
+        tracker = MagicTracker(_ScriptedDetector(list(frames)), MagicWarp.pretrained(), follow=radius)
+        first, tracked = (tracker.track(image) for image in images)
+        at = {int(i): p for i, p in zip(tracked.ids, tracked.points, strict=True)}
+        on_their_point = [np.allclose(at.get(int(first.ids[i]), np.inf), second[i]) for i in near]
+        assert all(on_their_point) == kept and any(on_their_point) == kept
+
+
 def test_a_sparse_frame_is_topped_up_with_the_second_detectors_points_that_are_new():
     from deepslam.frontend.tracking import ToppedUpDetector
 
