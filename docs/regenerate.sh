@@ -35,6 +35,12 @@ deepslam eval pipeline --out docs/eval/pipeline_map --jobs "$JOBS" $MAP --scale 
 deepslam eval pipeline --out docs/eval/pipeline_map_gt --jobs "$JOBS" $MAP --scale gt
 deepslam eval pipeline --out docs/eval/pipeline_map_paths --jobs "$JOBS" --worlds plane room \
   --trajectories figure8 line random --noise 0 0.5 --lighting 0 --seeds 3 --scale map
+# tracks followed by Lucas-Kanade (--follow): drift, and how often tracks stay on their points
+deepslam eval pipeline --out docs/eval/pipeline_map_follow --jobs "$JOBS" --worlds room clutter \
+  --trajectories circle forward --noise 0 0.5 --lighting 0 --seeds 3 --frontends magic --follow --scale map
+python examples/track_consistency.py > docs/eval/track_consistency.txt
+# the map's bundle adjustment (gtsam) beside pycolmap's on the same windows
+python examples/bundle_adjusters.py > docs/eval/bundle_adjusters.txt
 # timings, one process at a time
 deepslam bench detector --out docs/eval
 deepslam bench warp --out docs/eval

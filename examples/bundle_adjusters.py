@@ -1,0 +1,137 @@
+"""gtsam's bundle adjustment (the map's) beside pycolmap's (Ceres) on the same windows: every window the map
+adjusts in oracle runs is captured before its adjustment and solved by both, with the same Huber loss, the
+same iteration cap and one thread. Prints the median time a window and the median error of the landmarks'
+depths (in the oldest keyframe, against the simulator's points) before and after.
+
+    python examples/bundle_adjusters.py --oracle-noise 0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import time
+
+import numpy as np
+import pycolmap
+
+from deepslam.backend import mapping
+from deepslam.backend.config import OdometryConfig, PipelineConfig
+from deepslam.backend.evaluation.runs import simulated_frames
+from deepslam.backend.evaluation.truth import run_pipeline
+from deepslam.frontend.config import TrackerConfig
+from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+RUNS = [("room", "circle"), ("clutter", "circle"), ("clutter", "forward")]
+
+
+def captured_windows(world: str, trajectory: str, seed: int, noise: float) -> list[tuple[mapping.LocalMap, dict]]:
+    """Copies of the map before each of its adjustments of three or more keyframes, with the run's true camera
+    poses by frame index and world points by landmark id (``{"poses": {...}, "points": (M, 3)}``)."""
+    windows, adjust = [], mapping.LocalMap.adjust
+
+    def capture(local_map):
+        if len(local_map.keyframes) >= 3:
+            windows.append(copy.deepcopy(local_map))
+        return adjust(local_map)
+
+    scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=60, seed=seed))
+    poses = {}
+    config = PipelineConfig(TrackerConfig("oracle", oracle_noise=noise), OdometryConfig())
+    mapping.LocalMap.adjust = capture
+    try:
+        for _, frame, result in run_pipeline(simulated_frames(scenario), config):
+            poses[result.index] = frame.T_world_cam
+    finally:
+        mapping.LocalMap.adjust = adjust
+    truth = {"poses": poses, "points": scenario.world.landmarks}
+    return [(window, truth) for window in windows]
+
+
+def depth_error(T_world_oldest: np.ndarray, landmarks: dict[int, np.ndarray], truth: dict, oldest: int) -> float:
+    """Median |estimated / true depth - 1| of ``landmarks`` in the oldest keyframe (frame index ``oldest``)."""
+    ids = np.array(sorted(landmarks))
+    estimated = mapping.project(T_world_oldest, np.eye(3), np.array([landmarks[i] for i in ids]))[1]
+    true = mapping.project(truth["poses"][oldest], np.eye(3), truth["points"][ids])[1]
+    return float(np.median(np.abs(estimated / true - 1)))
+
+
+def with_pycolmap(local_map: mapping.LocalMap) -> tuple[np.ndarray, dict[int, np.ndarray], float]:
+    """The window solved by pycolmap: the oldest keyframe's pose (4, 4), the landmarks, seconds."""
+    config, K = local_map.config, local_map.keyframes[0].K
+    reconstruction = pycolmap.Reconstruction()
+    camera = pycolmap.Camera(
+        model="PINHOLE", width=160, height=120, params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], camera_id=1
+    )
+    reconstruction.add_camera_with_trivial_rig(camera)
+    seen: dict[int, list[tuple[int, int]]] = {}
+    for image_id, keyframe in enumerate(local_map.keyframes, start=1):
+        known = local_map.known(keyframe.ids)
+        image = pycolmap.Image(name=str(image_id), keypoints=keyframe.points[known], camera_id=1, image_id=image_id)
+        T_cam_world = np.linalg.inv(keyframe.T_world_cam)
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(T_cam_world[:3, :3]), T_cam_world[:3, 3])
+        reconstruction.add_image_with_trivial_frame(image, pose)
+        for index, track in enumerate(keyframe.ids[known]):
+            seen.setdefault(int(track), []).append((image_id, index))
+    adjustment = pycolmap.BundleAdjustmentConfig()
+    for image_id in range(1, len(local_map.keyframes) + 1):
+        adjustment.add_image(image_id)
+    point_ids = {}
+    for track, views in seen.items():
+        if len(views) >= 2:
+            elements = pycolmap.Track()
+            for image_id, index in views:
+                elements.add_element(image_id, index)
+            point_ids[track] = reconstruction.add_point3D(local_map.landmarks[track], elements)
+            adjustment.add_variable_point(point_ids[track])
+    adjustment.set_constant_cam_intrinsics(1)
+    adjustment.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    options = pycolmap.BundleAdjustmentOptions(
+        refine_focal_length=False, refine_extra_params=False, print_summary=False
+    )
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.HUBER
+    options.ceres.loss_function_scale = config.huber_px
+    options.ceres.solver_options.max_num_iterations = config.iterations
+    options.ceres.solver_options.num_threads = 1
+    started = time.perf_counter()
+    pycolmap.create_default_bundle_adjuster(options, adjustment, reconstruction).solve()
+    seconds = time.perf_counter() - started
+    T_cam_world = np.eye(4)
+    T_cam_world[:3] = reconstruction.image(1).cam_from_world().matrix()
+    landmarks = {track: reconstruction.point3D(point_id).xyz for track, point_id in point_ids.items()}
+    return np.linalg.inv(T_cam_world), landmarks, seconds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--oracle-noise", type=float, default=0.5, help="pixel noise of the oracle's tracks")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds of each run")
+    args = parser.parse_args()
+    rows = []
+    for (world, trajectory), seed in ((run, seed) for run in RUNS for seed in args.seeds):
+        for window, truth in captured_windows(world, trajectory, seed, args.oracle_noise):
+            oldest = window.keyframes[0].index
+            before = depth_error(window.keyframes[0].T_world_cam, window.landmarks, truth, oldest)
+            T_oldest, landmarks, colmap_seconds = with_pycolmap(window)
+            started = time.perf_counter()
+            window.adjust()
+            gtsam_seconds = time.perf_counter() - started
+            kept = {track: window.landmarks[track] for track in landmarks if track in window.landmarks}
+            rows.append(
+                (
+                    1e3 * gtsam_seconds,
+                    1e3 * colmap_seconds,
+                    before,
+                    depth_error(window.keyframes[0].T_world_cam, kept, truth, oldest),
+                    depth_error(T_oldest, landmarks, truth, oldest),
+                )
+            )
+    medians = np.median(np.array(rows), axis=0)
+    runs = ", ".join(f"{world} {trajectory}" for world, trajectory in RUNS)
+    print(f"{len(rows)} windows of oracle runs (noise {args.oracle_noise} px, seeds {args.seeds}): {runs}")
+    print(f"ms a window (median): gtsam {medians[0]:.1f}, pycolmap {medians[1]:.1f}")
+    print(f"landmark depth error (median): before {medians[2]:.4f}, gtsam {medians[3]:.4f}, pycolmap {medians[4]:.4f}")
+
+
+if __name__ == "__main__":
+    main()
