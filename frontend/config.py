@@ -98,8 +98,8 @@ class TrackerConfig:
         metadata={
             "help": "find each track where Lucas-Kanade aligns its patch of the previous frame, starting from where "
             f"MagicWarp's homography carries it, and snap it to a detection within {FOLLOW_RADIUS:g} px of that, so "
-            "that parallax does not move it onto a neighbour's detection (default: snapped where the homography "
-            "carries it, as in the paper; needs --polish)"
+            "that parallax does not move it onto a neighbour's detection (magic front-end; default: snapped where the "
+            "homography carries it, as in the paper; needs --polish)"
         },
     )
     ransac: bool = field(default=False, metadata={"help": "fundamental-matrix RANSAC on MagicWarp matches"})
