@@ -91,6 +91,13 @@ class FrameResult:
         return self.relative is not None and not self.relative.ok
 
 
+def with_length(T: np.ndarray, length: float) -> np.ndarray:
+    """A copy of the pose ``T`` (4, 4) whose translation is ``length`` long (zero stays zero)."""
+    scaled = T.copy()
+    scaled[:3, 3] *= length / max(float(np.linalg.norm(T[:3, 3])), 1e-12)
+    return scaled
+
+
 def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
     """Index pairs (K, 2) of points of ``a`` and ``b`` with the same track id."""
     common, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
@@ -226,8 +233,7 @@ class Odometry:
             self.plane_normal_world = R_world_i @ rel.plane_normal
         T = rel.T_c1_c2.copy()
         if rel.ok and not rel.rotation_only and rel.model != "static":
-            norm = np.linalg.norm(T[:3, 3])
-            T[:3, 3] *= self._step_length(i, j, rel) / max(norm, 1e-12)
+            T = with_length(T, self._step_length(i, j, rel))
         return rel, T, pairs, p2
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
@@ -398,19 +404,13 @@ class Odometry:
         rel = relpose.estimate(tracks_kf.points[pairs[:, 0]], points, frame_k.K, "essential", size=frame_k.shape)
         if not rel.ok or rel.rotation_only:
             return None
-        general = rel.T_c1_c2.copy()
-        general[:3, 3] *= np.linalg.norm(T[:3, 3]) / max(np.linalg.norm(general[:3, 3]), 1e-12)
-        return general
+        return with_length(rel.T_c1_c2, float(np.linalg.norm(T[:3, 3])))
 
     def _first_baseline(self, kf: int, k: int, T: np.ndarray) -> np.ndarray:
         """``T`` (4, 4), frame k seen from keyframe kf, with the true length of the first map's baseline where
         the input knows it (the scale every later map carries), else as it is."""
         known = self.step_lengths(kf, k) if self.first_map and self.step_lengths is not None else None
-        if known is None or np.linalg.norm(T[:3, 3]) == 0:
-            return T
-        scaled = T.copy()
-        scaled[:3, 3] *= known / np.linalg.norm(T[:3, 3])
-        return scaled
+        return T if known is None else with_length(T, known)
 
     def _add_adjusted(self, k: int) -> None:
         """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe
