@@ -29,7 +29,7 @@ class GraphConfig:
 class MapConfig:
     """The local map of ``scale="map"`` (``deepslam.backend.mapping``): triangulation, PnP, bundle adjustment."""
 
-    window: int = 6  # keyframes the local bundle adjustment optimises (the two oldest held fixed: gauge and scale)
+    window: int = 6  # keyframes the local bundle adjustment optimises (the oldest held, its distance to the next kept)
     min_located: int = 12  # fewer landmarks matched in a frame: no PnP pose (the two-view pose is tried)
     pnp_px: float = 2.0  # PnP RANSAC's reprojection threshold (px)
     max_reprojection_px: float = 3.0  # a landmark observation farther than this from its projection is dropped
@@ -46,6 +46,7 @@ class MapConfig:
     min_located_share: float = 0.3  # ... or fewer than this share of its tracks makes a keyframe
     huber_px: float = 1.345  # the bundle adjustment's robust loss (px, sigma 1 px)
     iterations: int = 10  # Levenberg-Marquardt iterations a bundle adjustment takes at most
+    predict: bool = True  # the front-end looks for a landmark's track where the map projects it (constant motion)
 
     def __post_init__(self):
         if self.window < 2 or self.min_located < 6 or self.min_initial_landmarks < self.min_located:

@@ -16,7 +16,8 @@ homography decompositions (t / d) carry from frame to frame; ``scale="none"`` do
 distance taken as the unit of length: the trajectory up to scale.
 
 ``scale="map"`` needs no plane: once two keyframes triangulate enough landmarks (``deepslam.backend.mapping``),
-each frame is located in that local map by PnP against the current keyframe's landmarks, every keyframe adds
+each frame is located in that local map by PnP against the current keyframe's landmarks (which the front-end
+looks for where the map projects them from the pose the last step, repeated, predicts), every keyframe adds
 landmarks and a local bundle adjustment, and the map carries the scale of its first baseline: its true length
 where the caller passes ``step_lengths`` (an input with truth), else the unit (about one keyframe's motion).
 Two-view poses before the first map take their lengths from that same source for at most ``map.start_within``
@@ -37,8 +38,8 @@ from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.backend.mapping import Keyframe, LocalMap, project
 from deepslam.errors import InputError
-from deepslam.frontend.tracking import Tracker, Tracks
-from deepslam.geometry import rotation_angle, vector_angle
+from deepslam.frontend.tracking import Predicted, Tracker, Tracks
+from deepslam.geometry import in_image, rotation_angle, vector_angle
 from deepslam.interrupts import checkpoint
 
 BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
@@ -188,7 +189,7 @@ class Odometry:
         ids = tracks_k.ids[pairs[:, 1]]
         landmark = self.map.known(ids)
         pairs, points = pairs[landmark], points[landmark]
-        location = self.map.locate(ids[landmark], points, frame_k.K, self.graph.pose(k - 1))
+        location = self.map.locate(ids[landmark], points, frame_k.K, self._in_map(kf, self.graph.pose(k - 1)))
         self.located = int(location.inliers.sum())
         if self.first_located is None or self.first_located[0] != kf:
             self.first_located = (kf, self.located)
@@ -203,6 +204,11 @@ class Odometry:
     def _map_pose(self, index: int) -> np.ndarray:
         """The map's pose (4, 4) of a keyframe it holds."""
         return next(keyframe.T_world_cam for keyframe in self.map.keyframes if keyframe.index == index)
+
+    def _in_map(self, kf: int, T_world_cam: np.ndarray) -> np.ndarray:
+        """A pose of the graph's (4, 4) in the map's world, placed by keyframe kf, which both hold (the graph's
+        world and the map's drift apart)."""
+        return self._map_pose(kf) @ np.linalg.inv(self.graph.pose(kf)) @ T_world_cam
 
     def _map_holds(self, index: int) -> bool:
         return self.map is not None and self.map.started and any(k.index == index for k in self.map.keyframes)
@@ -247,6 +253,9 @@ class Odometry:
         """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe,
         add it to the graph, update."""
         started = time.perf_counter()
+        predicted = self._predicted(K, image.shape)
+        if predicted is not None:
+            self.tracker.expect(predicted)
         tracks = self.tracker.track(image)
         tracked = time.perf_counter()
         k, self.frames = self.frames, self.frames + 1
@@ -283,6 +292,18 @@ class Odometry:
             k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
             shared, map_points,
         )  # fmt: skip
+
+    def _predicted(self, K: np.ndarray, shape: tuple[int, int]) -> Predicted | None:
+        """Where the map's landmarks should appear in the next frame (K (3, 3), image shape (H, W)): projected
+        from the pose the last step, repeated, predicts (in the map's world); None without a map that holds the
+        current keyframe (or with ``map.predict`` off)."""
+        if not (self.config.map.predict and self._map_holds(self.keyframe) and self.frames >= 2):
+            return None
+        last, before = (self._in_map(self.keyframe, self.graph.pose(self.frames - step)) for step in (1, 2))
+        ids, world = self.map.points()
+        pixels, depth = project(last @ np.linalg.inv(before) @ last, K, world)
+        seen = (depth > 0) & in_image(pixels, shape)
+        return Predicted(ids[seen], pixels[seen])
 
     def _shared(self, kf: int, k: int, rel: relpose.RelativePose) -> int:
         """The tracks of frame k its pose could be measured from: landmarks of the map where it was located in

@@ -13,6 +13,7 @@ from deepslam.errors import InputError
 POINT_BUDGET = 150  # points a front-end reports at most, by default (the oracle's too)
 CARRY_FRAMES = 20  # frames a track the detector misses is carried on (``MagicTracker.max_age``)
 FOLLOW_RADIUS = 1.5  # px: a followed track snaps to a detection this close to where its patch aligned
+PREDICTED_WITHIN = 4.0  # px: a track predicted farther than this from where the homography carries it stays there
 TOP_UP_MIN_POINTS, TOP_UP_ENOUGH_POINTS = 40, 80  # S is topped up from below the first until it finds the second
 BENCH_REPEATS = 100  # timed repetitions of a network's forward pass in its benchmark; the median is reported
 Frontend = Literal["magic", "classical", "oracle"]

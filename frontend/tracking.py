@@ -2,7 +2,8 @@
 
 - ``MagicTracker``: MagicPoint detections, MagicWarp between consecutive point images (refined by
   snapping and one robust homography fit over its pairs and those of the no-motion and constant-motion
-  guesses), nearest-neighbour snapping (optionally after Lucas-Kanade followed each track from the previous
+  guesses), nearest-neighbour snapping to where that homography, or the caller's prediction (a map's
+  landmarks), puts each track (optionally after Lucas-Kanade followed each track from the previous
   frame, and a fundamental-matrix RANSAC on top); a track the detector misses is carried on by that
   homography and aligned to the frame it was last detected in. The pairs a pose is measured from (a frame and
   its keyframe) are confirmed and polished by ``frontend.polish`` (``confirm``).
@@ -29,6 +30,7 @@ from deepslam.frontend.config import (
     FOLLOW_RADIUS,
     FRONTENDS,
     POINT_BUDGET,
+    PREDICTED_WITHIN,
     TOP_UP_ENOUGH_POINTS,
     TOP_UP_MIN_POINTS,
     PolishConfig,
@@ -57,6 +59,15 @@ class Tracks:
 
 
 @dataclass
+class Predicted:
+    """Where a model of the scene expects tracks in the next frame: track ids (M,) int64 and pixels (M, 2), e.g.
+    a local map's landmarks projected from the pose the camera's motion so far predicts."""
+
+    ids: np.ndarray
+    pixels: np.ndarray
+
+
+@dataclass
 class Truth:
     """What a simulator knows of a frame, for the oracle: visible landmark ids (N,) and pixels (N, 2)."""
 
@@ -66,7 +77,8 @@ class Truth:
 
 class Tracker:
     """Interface: ``track(image) -> Tracks`` for each frame in order (image uint8 (H, W)); ids persist while
-    a point is followed."""
+    a point is followed. Before a frame the caller may say where it expects some of the tracks (``expect``); a
+    front-end may start its search for them there (the magic one does) or ignore it."""
 
     def __init__(self):
         self.previous = Tracks.empty()
@@ -89,6 +101,10 @@ class Tracker:
 
     def track(self, image: np.ndarray) -> Tracks:
         raise NotImplementedError
+
+    def expect(self, predicted: Predicted) -> None:
+        """Where the caller expects tracks in the frame ``track`` is given next; ignored unless a front-end
+        overrides this."""
 
     def confirm(self, reference: Tracks, current: Tracks, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The pairs (K, 2) of ``reference`` and ``current`` indices a pose may be measured from, and the
@@ -130,7 +146,8 @@ class MagicTracker(Tracker):
     ``ransac`` adds a fundamental-matrix check; ``polish`` (a ``PolishConfig``, or None for a purely
     geometric tracker) confirms and polishes the pairs a pose is measured from (``confirm``); ``follow`` (px,
     with ``polish``) finds each track where Lucas-Kanade aligns it from the previous frame before snapping
-    (``_snap``)."""
+    (``_snap``). Tracks the caller ``expect``s somewhere (a map's landmarks) are looked for there instead of
+    where the homography carries them (``_place``)."""
 
     def __init__(
         self,
@@ -163,6 +180,10 @@ class MagicTracker(Tracker):
         self.live_age = np.zeros(0, np.int64)  # frames since last detected
         self.live_anchor = np.zeros((0, 2))  # where each live track was last detected
         self.appearances: list[np.ndarray] = []  # the last max_age + 1 frames as polishing sees them, oldest first
+        self.expected: Predicted | None = None  # where the caller expects tracks in the next frame (``expect``)
+
+    def expect(self, predicted: Predicted) -> None:
+        self.expected = predicted
 
     def _homography(self, points: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
         """H (3, 3) from the previous frame's detections to ``points`` (N, 2). With ``refine``: fitted robustly
@@ -193,6 +214,7 @@ class MagicTracker(Tracker):
             warped = time.perf_counter()
             before = self.live
             self.live = warp_points(self.live, self.last_homography)
+            self._place(self.expected)
             pairs = self._snap(before, points, appearance)
             if self.ransac:
                 pairs = _ransac_filter(pairs, self.live, points)
@@ -229,7 +251,19 @@ class MagicTracker(Tracker):
         self.live_anchor = np.vstack([points, self.live_anchor[keep]])
         if appearance is not None:
             self.appearances = (self.appearances + [appearance])[-(self.max_age + 1) :]
+        self.expected = None  # a prediction holds for one frame
         return self.previous
+
+    def _place(self, predicted: Predicted | None) -> None:
+        """Move the live tracks ``predicted`` holds from where the homography carried them to where it expects
+        them, if within ``PREDICTED_WITHIN`` px (farther, the prediction's motion or depth is more likely off than
+        the homography): a point off the homography's plane moves by its own depth, which a map knows and the
+        homography does not."""
+        if predicted is None or not len(predicted.ids):
+            return
+        _, live, expected = np.intersect1d(self.live_ids, predicted.ids, return_indices=True)
+        near = np.linalg.norm(predicted.pixels[expected] - self.live[live], axis=1) <= PREDICTED_WITHIN
+        self.live[live[near]] = predicted.pixels[expected[near]]
 
     def _snap(self, before: np.ndarray, points: np.ndarray, appearance: np.ndarray | None) -> np.ndarray:
         """Pairs (K, 2) of live tracks and ``points`` (M, 2), this frame's detections: with ``follow``, each live

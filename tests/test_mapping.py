@@ -8,10 +8,11 @@ import pytest
 from deepslam.backend import drift
 from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
-from deepslam.backend.evaluation.truth import run_pipeline
+from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
 from deepslam.backend.mapping import Keyframe, LocalMap, project
 from deepslam.backend.pipeline import Pipeline
 from deepslam.frontend.config import TrackerConfig
+from deepslam.frontend.tracking import OracleTracker
 from deepslam.sim.camera import intrinsics
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -127,6 +128,36 @@ def test_a_noisy_run_that_makes_a_keyframe_every_frame_keeps_a_solvable_graph(wo
     scenario = Scenario(ScenarioConfig(world=world, trajectory="circle", frames=60, seed=2, noise=0.5))
     output = run_frames(simulated_frames(scenario), PipelineConfig(TrackerConfig("classical")), progress=False)
     assert np.all(np.isfinite(output.estimate)) and np.all(np.isfinite(output.pipeline.trajectory()))
+
+
+class _PredictionsMeasured(OracleTracker):
+    """The oracle, measuring how far each prediction it is given lies from its track's true projection (px)."""
+
+    def expect(self, predicted):
+        truth = self.landmarks()  # of the frame tracked next
+        _, a, b = np.intersect1d(predicted.ids, truth.ids, return_indices=True)
+        self.errors.append(np.linalg.norm(predicted.pixels[a] - truth.pixels[b], axis=1))
+
+
+def _prediction_errors(scenario: Scenario, config: PipelineConfig) -> list[np.ndarray]:
+    """Per frame the front-end was given predictions: their distances (px) from the true projections."""
+    truth = GroundTruth()
+    tracker = _PredictionsMeasured(truth.landmarks, noise_px=config.tracker.oracle_noise)
+    tracker.errors = []
+    for _ in run_pipeline(simulated_frames(scenario), config, tracker, truth=truth):
+        pass
+    return tracker.errors
+
+
+@pytest.mark.parametrize("trajectory", ["circle", "forward"])
+def test_the_map_predicts_where_the_next_frame_sees_its_landmarks(trajectory):
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory=trajectory, frames=40, seed=1))
+    predicted = _prediction_errors(scenario, PipelineConfig(TrackerConfig("oracle")))
+    assert len(predicted) > 10 and min(map(len, predicted)) >= MapConfig().min_located
+    errors = np.concatenate(predicted)
+    assert np.median(errors) < 1.0 and np.mean(errors < 3.0) > 0.95, np.percentile(errors, [50, 90, 99])
+    off = PipelineConfig(TrackerConfig("oracle"), OdometryConfig(map=MapConfig(predict=False)))
+    assert not _prediction_errors(scenario, off)
 
 
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():

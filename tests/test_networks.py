@@ -485,6 +485,30 @@ def test_a_following_magic_tracker_keeps_a_point_through_parallax_where_snapping
         assert all(on_their_point) == kept and any(on_their_point) == kept
 
 
+def test_a_magic_tracker_looks_for_a_track_where_it_is_predicted_not_where_the_homography_puts_it():
+    from deepslam.frontend.tracking import MagicTracker, Predicted
+
+    rng = np.random.default_rng(6)
+    points = np.stack(np.meshgrid(np.arange(25, 136, 22.0), np.arange(25, 96, 23.0)), -1).reshape(-1, 2)
+    shift, parallax = np.array([2.0, 1.0]), np.array([2.5, 0.0])
+    near = np.arange(4)  # the points of a nearer surface, as in the following test above
+    images = _parallax_pair(rng, shift, parallax, points[near])
+    second = points + shift
+    second[near] += parallax
+    decoys = points[near] + shift + [-0.5, 0.0]
+    # a map's guess near the point, none, and one too far from the homography's to be believed (> 4 px)
+    for offset, told in (([0.4, -0.3], True), (None, False), ([6.0, 0.0], False)):
+        tracker = MagicTracker(_ScriptedDetector([points, np.vstack([second, decoys])]), MagicWarp.pretrained())
+        first = tracker.track(images[0])
+        if offset is not None:
+            tracker.expect(Predicted(first.ids[near], second[near] + offset))
+        tracked = tracker.track(images[1])
+        at = {int(i): p for i, p in zip(tracked.ids, tracked.points, strict=True)}
+        assert [np.allclose(at.get(int(first.ids[i]), np.inf), second[i]) for i in near] == [told] * len(near)
+        far = np.setdiff1d(np.arange(len(points)), near)
+        np.testing.assert_allclose([at[int(first.ids[i])] for i in far], second[far])  # the rest as before
+
+
 def test_a_sparse_frame_is_topped_up_with_the_second_detectors_points_that_are_new():
     from deepslam.frontend.tracking import ToppedUpDetector
 
