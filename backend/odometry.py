@@ -184,8 +184,8 @@ class Odometry:
     def _locate(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Frame k located in the map by PnP on the landmarks among the pairs the front-end confirms with keyframe
         kf (which the map holds); returns what ``_measure`` does, the pose "pnp" (T_kf_k metric)."""
-        tracks_kf, (frame_k, tracks_k) = self.history[kf][1], self.history[k]
-        pairs, points = self.tracker.confirm(tracks_kf, tracks_k, shared_tracks(tracks_kf, tracks_k))
+        frame_k, tracks_k = self.history[k]
+        pairs, points = self._confirmed(kf, k)
         ids = tracks_k.ids[pairs[:, 1]]
         landmark = self.map.known(ids)
         pairs, points = pairs[landmark], points[landmark]
@@ -200,6 +200,12 @@ class Odometry:
         depth = np.median(project(location.T_world_cam, frame_k.K, self.map.points_of(location.ids))[1])
         self.baseline_px = float(np.linalg.norm(T[:3, 3]) / max(depth, 1e-9) * frame_k.K[0, 0])
         return relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points
+
+    def _confirmed(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs (K, 2) of stored frames i and j's shared tracks the front-end confirms, and frame j's points
+        (K, 2) of them (``Tracker.confirm``)."""
+        tracks_i, tracks_j = self.history[i][1], self.history[j][1]
+        return self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
 
     def _map_pose(self, index: int) -> np.ndarray:
         """The map's pose (4, 4) of a keyframe it holds."""
@@ -216,8 +222,8 @@ class Odometry:
     def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences (K, 2),
         frame j's points of them (K, 2))."""
-        tracks_i, (frame_j, tracks_j) = self.history[i][1], self.history[j]
-        pairs, p2 = self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
+        tracks_i, frame_j = self.history[i][1], self.history[j][0]
+        pairs, p2 = self._confirmed(i, j)
         p1 = tracks_i.points[pairs[:, 0]]
         R_world_i = self.graph.pose(i)[:3, :3]
         normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
@@ -420,8 +426,8 @@ class Odometry:
     def _general_pose(self, kf: int, k: int, T: np.ndarray) -> np.ndarray | None:
         """Frame k seen from keyframe kf (4, 4) by the essential matrix of their confirmed pairs, as long as
         ``T``, or None where it finds no translation."""
-        tracks_kf, (frame_k, tracks_k) = self.history[kf][1], self.history[k]
-        pairs, points = self.tracker.confirm(tracks_kf, tracks_k, shared_tracks(tracks_kf, tracks_k))
+        tracks_kf, frame_k = self.history[kf][1], self.history[k][0]
+        pairs, points = self._confirmed(kf, k)
         rel = relpose.estimate(tracks_kf.points[pairs[:, 0]], points, frame_k.K, "essential", size=frame_k.shape)
         if not rel.ok or rel.rotation_only:
             return None
