@@ -33,9 +33,9 @@ class MapConfig:
     min_located: int = 12  # fewer landmarks matched in a frame: no PnP pose (the two-view pose is tried)
     pnp_px: float = 2.0  # PnP RANSAC's reprojection threshold (px)
     max_reprojection_px: float = 3.0  # a landmark observation farther than this from its projection is dropped
-    min_triangulation_px: float = (
-        6.0  # rays meeting at a smaller angle (in pixels: radians x focal length) make no landmark
-    )
+    # rays meeting at a smaller angle (in pixels: radians x focal length) make no landmark; a keyframe for what
+    # the map no longer covers waits for a baseline this wide while PnP still locates min_located landmarks
+    min_triangulation_px: float = 6.0
     min_initial_landmarks: int = 30  # the map starts once two keyframes triangulate this many landmarks ...
     min_initial_px: float = 10.0  # ... seen from at least this angle apart (pixels) ...
     max_start_deg: float = 3.0  # ... and the direction between the two is known to this (1 sigma, degrees)

@@ -382,10 +382,14 @@ class Odometry:
         """The map's keyframe policy: the last frame, located against the current keyframe, was located with
         fewer than ``map.coverage`` of the landmarks the first frame located against it had, or fewer than
         ``map.min_located_share`` of its ``tracks``, or it moved ``keyframe_parallax`` pixels away from the keyframe
-        (as an angle at the landmarks' median depth: new landmarks can be triangulated)."""
+        (as an angle at the landmarks' median depth: new landmarks can be triangulated). While PnP still locates
+        ``map.min_located`` landmarks, the first two rules wait until that angle reaches ``map.min_triangulation_px``:
+        a keyframe closer than that triangulates nothing new, and a sparse map would otherwise make every frame one."""
         if not (self._map_holds(current) and self.first_located is not None and self.first_located[0] == current):
             return False
         config = self.config.map
+        if self.baseline_px < config.min_triangulation_px and self.located >= config.min_located:
+            return False
         return (
             self.located < config.coverage * self.first_located[1]
             or self.located < config.min_located_share * tracks

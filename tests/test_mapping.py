@@ -1,6 +1,6 @@
 """The local map (triangulation, PnP, bundle adjustment, culling) and scale "map"."""
 
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytest
@@ -12,7 +12,7 @@ from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
 from deepslam.backend.mapping import Keyframe, LocalMap, project
 from deepslam.backend.pipeline import Pipeline
 from deepslam.frontend.config import TrackerConfig
-from deepslam.frontend.tracking import OracleTracker
+from deepslam.frontend.tracking import OracleTracker, Tracks
 from deepslam.sim.camera import intrinsics
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -158,6 +158,36 @@ def test_the_map_predicts_where_the_next_frame_sees_its_landmarks(trajectory):
     assert np.median(errors) < 1.0 and np.mean(errors < 3.0) > 0.95, np.percentile(errors, [50, 90, 99])
     off = PipelineConfig(TrackerConfig("oracle"), OdometryConfig(map=MapConfig(predict=False)))
     assert not _prediction_errors(scenario, off)
+
+
+@dataclass
+class _WithFleetingTracks(OracleTracker):
+    """The oracle plus ``extra`` tracks a frame that live one frame only (new ids, random pixels): tracks the map
+    can never locate, so that it covers a small share of every frame's tracks."""
+
+    extra: int = 400
+    frames: int = field(default=0, init=False)
+
+    def track(self, image):
+        true = super().track(image)
+        self.frames += 1
+        fleeting = 10**9 + self.frames * self.extra + np.arange(self.extra)
+        pixels = self.rng.uniform([0, 0], [159, 119], (self.extra, 2))
+        return Tracks(np.r_[true.points, pixels], np.r_[true.ids, fleeting], np.ones(len(true.ids) + self.extra))
+
+
+def test_a_map_that_locates_few_of_the_tracks_does_not_make_every_frame_a_keyframe():
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=40, seed=1))
+    truth = GroundTruth()
+    tracker = _WithFleetingTracks(truth.landmarks, noise_px=0.5)
+    run = list(run_pipeline(simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle")), tracker, truth=truth))
+    results = [result for _, _, result in run]
+    started = next(r.index for r in results[1:] if r.relative.model == "pnp")
+    after = results[started + 1 :]
+    assert np.mean([r.shared < 0.3 * len(r.tracks.ids) for r in after]) > 0.9  # the share rule alone would fire
+    assert sum(r.keyframe for r in after) < 0.5 * len(after), [r.index for r in after if r.keyframe]
+    assert min(r.landmarks for r in after) >= MapConfig().min_initial_landmarks  # the map is not starved
+    assert not any(r.lost for r in after)
 
 
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():
