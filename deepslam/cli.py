@@ -214,7 +214,7 @@ def _replay(args: argparse.Namespace) -> None:
 def _drift(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation import analysis
 
-    _save(analysis.analyse(args.logs, args.delta), args.out)
+    _save(analysis.analyse(args.logs, args.delta, args.limit), args.out)
     for path in (
         [path for log_path in args.logs for path in analysis.export_tum(log_path, args.out)] if args.tum else []
     ):

@@ -369,6 +369,8 @@ def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apa
     assert rows[0]["median_ate_se3"] == pytest.approx(np.median(textured)) and len(textured) == 4
     assert rows[0]["median_ate_se3_corner_poor"] == runs[3]["ate_se3"]  # grass, apart
     assert rows[0]["failed"] == 0  # the oracle never drifts 5% of its path
+    over_limit = [r["ate_se3"] / r["limit_ate_se3"] for r in runs if not r["corner_poor"]]
+    assert rows[0]["median_ate_over_limit"] == pytest.approx(np.median(over_limit)) and min(over_limit) > 0
     lines = sweep.table().splitlines()
     assert lines == matrix_lines(rows)
     assert "3 grass" in lines[4] and any(line.split()[-5:] == [f"{r['ate_se3']:.4f}" for r in runs] for line in lines)

@@ -124,6 +124,19 @@ def test_drift_plots_and_tum(oracle_log, tmp_path):
     assert len(gt.read_text().splitlines()) == 25 and len(est.read_text().split("\n")[0].split()) == 8
 
 
+def test_drift_names_logs_whole_and_measures_them_against_the_limit_of_their_tracks(oracle_log, tmp_path):
+    path, result = oracle_log
+    named = tmp_path / "a_long_name_of_a_clutter_circle_classical_run.mcap"
+    named.write_bytes(path.read_bytes())
+    comparison = analysis.analyse([named], limit=True)
+    figures = comparison.logs[str(named)]
+    table = comparison.table().splitlines()
+    assert table[1].startswith(named.name + " ") and table[0].split()[-2:] == ["limit", "/limit"]
+    assert 0 < figures["limit_ate_se3"] < figures["ate_se3"]  # the oracle's tracks allow less drift than it has
+    assert figures["ate_over_limit"] == pytest.approx(figures["ate_se3"] / figures["limit_ate_se3"])
+    assert "limit" not in analysis.analyse([named]).table()
+
+
 def test_garbage_and_foreign_files_get_clear_errors(tmp_path):
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(os.urandom(5000))

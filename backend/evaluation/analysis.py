@@ -10,6 +10,8 @@ import numpy as np
 
 from deepslam.backend import drift
 from deepslam.backend.evaluation.config import DriftConfig
+from deepslam.backend.evaluation.consistency import TrackObservations
+from deepslam.backend.evaluation.limit import batch_adjust
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.results import Result
@@ -34,9 +36,22 @@ def lost_frames(path: str | Path) -> int | None:
     return sum(flags) if flags else None
 
 
-def analyse(paths: list[str | Path], delta: int = DriftConfig.delta) -> DriftComparison:
+def track_observations(path: str | Path) -> TrackObservations:
+    """Every track observation of a log, with each frame's true pose; every frame must have both."""
+    observations = TrackObservations()
+    for frame in read_frames(path):
+        if frame.T_groundtruth is None or frame.tracks is None:
+            raise LogError(f"{path}: the limit needs ground truth and tracks in every frame; frame {frame.stamp_ns} ns")
+        observations.add(frame.tracks[:, 3].astype(np.int64), frame.tracks[:, :2], frame.K, frame.T_groundtruth)
+    return observations
+
+
+def analyse(
+    paths: list[str | Path], delta: int = DriftConfig.delta, limit: bool = DriftConfig.limit
+) -> DriftComparison:
     """Drift figures per log, with its front-end and scale method from the log's metadata and its lost
-    frames (-1 where the log does not say)."""
+    frames (-1 where the log does not say); with ``limit``, the ATE SE3 of the batch bundle adjustment of its
+    own tracks started at the truth (``deepslam.backend.evaluation.limit``) and the log's ATE over it."""
     results = {}
     for path in paths:
         _, truth, estimate = load_trajectories(path)
@@ -48,7 +63,16 @@ def analyse(paths: list[str | Path], delta: int = DriftConfig.delta) -> DriftCom
             "scale": meta.get("odometry", {}).get("scale", "?"),
             "lost_frames": -1 if lost is None else lost,
         }
+        if limit:
+            best = batch_adjust(track_observations(path)).ate_se3
+            results[str(path)] |= {"limit_ate_se3": best, "ate_over_limit": results[str(path)]["ate_se3"] / best}
     return DriftComparison(results, delta)
+
+
+LIMIT_NOTE = [
+    "limit: ATE SE3 (m) of one batch bundle adjustment of the log's own tracks, started at the truth (the best any "
+    "back-end could do with them); /limit: the log's ATE SE3 over it"
+]
 
 
 @dataclass
@@ -64,29 +88,35 @@ class DriftComparison(Result):
         return self.logs
 
     def lines(self) -> list[str]:
-        return table_lines(self.logs) + [
-            f"ATE: RMSE of positions after SE(3) / Sim(3) alignment (m); RPE: mean over frame pairs {self.delta} apart "
-            "(m, deg); final: position error at the end, % of the true path; scale dr(ift): estimated over true path "
-            "length, last quarter against first"
-        ]
+        meanings = (
+            f"ATE: RMSE of positions after SE(3) / Sim(3) alignment (m); RPE: mean over frame pairs {self.delta} "
+            "apart (m, deg); final: position error at the end, % of the true path; scale dr(ift): estimated over "
+            "true path length, last quarter against first"
+        )
+        limit = any("limit_ate_se3" in r for r in self.logs.values())
+        return [*table_lines(self.logs), meanings, *(LIMIT_NOTE if limit else [])]
 
     def plots(self, out: Path) -> list[Path]:
         return save_plots(list(self.logs), out, self.delta)
 
 
 def table_lines(results: dict[str, dict]) -> list[str]:
+    """A row per log, named whole by its file name; the limit's columns where the figures have them."""
+    width = max([len("log")] + [len(Path(path).name) for path in results])
+    limit = any("limit_ate_se3" in r for r in results.values())
     header = (
-        f"{'log':<28} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE m':>8} {'RPE deg':>8} "
-        f"{'final %':>8} {'scale dr':>8} {'path m':>7} {'lost':>5}"
+        f"{'log':<{width}} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE m':>8} {'RPE deg':>8} "
+        f"{'final %':>8} {'scale dr':>8} {'path m':>7} {'lost':>5}" + (f" {'limit':>8} {'/limit':>6}" if limit else "")
     )
     rows = [header]
     for path, r in results.items():
         rows.append(
-            f"{Path(path).name[-28:]:<28} {r['frontend']:<9} {r['scale']:<6} "
+            f"{Path(path).name:<{width}} {r['frontend']:<9} {r['scale']:<6} "
             f"{r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
             f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} "
             f"{r.get('scale_drift', float('nan')):>8.3f} {r['path_length']:>7.2f} "
             f"{r['lost_frames'] if r['lost_frames'] >= 0 else '?':>5}"
+            + (f" {r['limit_ate_se3']:>8.4f} {r['ate_over_limit']:>6.2f}" if limit else "")
         )
     return rows
 

@@ -95,3 +95,10 @@ class DriftConfig:
     """How ``deepslam drift`` measures."""
 
     delta: int = field(default=1, metadata={"help": "frame delta of the RPE", "min": 1, "max": MAX_FRAMES})
+    limit: bool = field(
+        default=False,
+        metadata={
+            "help": "also adjust each log's own tracks in one batch bundle adjustment started at the truth (the "
+            "best any back-end could do with them) and print its ATE and the log's ATE over it"
+        },
+    )

@@ -12,6 +12,7 @@ import numpy as np
 from deepslam.backend import drift
 from deepslam.backend.config import OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.consistency import TrackObservations, consistent_share
+from deepslam.backend.evaluation.limit import Limit, batch_adjust
 from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
 from deepslam.backend.odometry import FrameResult
 from deepslam.backend.pipeline import Pipeline
@@ -96,8 +97,16 @@ class RunOutput:
     frame_ms: np.ndarray  # (N,) the pipeline's milliseconds per frame
     inlier_shares: np.ndarray  # (N - 1,)
     consistency_errors: np.ndarray  # (M,)
+    observations: TrackObservations  # every track observation of the frames with truth
 
-    def summary(self, scale: str = "gt", timing: bool = True) -> dict:
+    def limit(self) -> Limit | None:
+        """The batch bundle adjustment of the run's own track observations, started at the truth
+        (``deepslam.backend.evaluation.limit``); None unless every frame has truth."""
+        if self.truth is None or len(self.observations.poses) != len(self.estimate):
+            return None
+        return batch_adjust(self.observations)
+
+    def summary(self, scale: str = "gt", timing: bool = True, limit: bool = False) -> dict:
         """What a run shows without truth: frames, keyframes, lost frames, the estimated path's length (in the
         run's units: metres, or with ``scale`` "none" the first plane distances, with "map" and no truth at the
         start the first baseline), median tracks and inliers a frame, the median share of a frame's pairs (or
@@ -105,7 +114,8 @@ class RunOutput:
         the frames with ground truth (up to scale, only what survives a Sim(3) alignment), the median track and
         pair errors against the simulator and the share of track observations within ``CONSISTENT_PX`` of their
         track's point, where they can be measured. ``timing`` False leaves out the milliseconds (they differ from
-        run to run)."""
+        run to run). ``limit``: also the ATE SE3 of the batch bundle adjustment of the run's own tracks (``limit``)
+        and the run's ATE SE3 over it, where every frame has truth."""
         figures: dict = {
             "frames": len(self.estimate),
             "keyframes": sum(d.keyframe for d in self.diagnostics),
@@ -131,6 +141,10 @@ class RunOutput:
             figures["pair_error_px"] = _median(self.pair_errors)
         if len(self.consistency_errors):
             figures["tracks_consistent"] = consistent_share(self.consistency_errors)
+        best = self.limit() if limit and "ate_se3" in figures else None
+        if best is not None:
+            figures["limit_ate_se3"] = best.ate_se3
+            figures["ate_over_limit"] = figures["ate_se3"] / max(best.ate_se3, 1e-12)
         return figures
 
 
@@ -228,6 +242,7 @@ def run_frames(
         np.array(frame_ms),
         np.array(inlier_shares, float),
         observations.errors(),
+        observations,
     )
 
 
@@ -238,8 +253,10 @@ def simulate(
     out: str | Path | None = None,
     metadata: dict | None = None,
     progress: bool = True,
+    limit: bool = False,
 ) -> dict:
-    """Run one simulated trajectory end to end (logged to ``out`` if given).
+    """Run one simulated trajectory end to end (logged to ``out`` if given); ``limit``: its summary has the
+    batch bundle adjustment's limit too (``RunOutput.summary``).
 
     Returns {"estimate", "truth", "summary" (``RunOutput.summary``), "smoothed_ate_se3", "scale", "pipeline",
     "world", "diagnostics"}.
@@ -267,7 +284,7 @@ def simulate(
     return {
         "estimate": output.estimate,
         "truth": output.truth,
-        "summary": output.summary(),
+        "summary": output.summary(limit=limit),
         "smoothed_ate_se3": drift.ate_rmse(output.pipeline.trajectory(), output.truth),
         "scale": odometry_config.scale,
         "pipeline": output.pipeline,

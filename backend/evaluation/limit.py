@@ -1,0 +1,131 @@
+"""The best any back-end could do with a run's own tracks (evaluation only: it needs the true poses).
+
+One batch bundle adjustment of every frame and every track observation of a run, started at the truth: each
+camera at its true pose, each track's point triangulated from all its observations with the true poses. An
+observation farther than ``max_reprojection_px`` from that point's projection is dropped (a track that jumped
+to another point: a back-end that knew which ones did); tracks seen from less than ``min_triangulation_px``
+apart are left out (their depth is unknown). The first camera is held at its true pose and its distance to the
+first camera that sees the points ``min_initial_px`` apart keeps its true length: the gauge and the scale, as a
+map's first baseline takes its true length with ``--scale map``. The drift of the adjusted poses is what the
+tracks themselves allow; a pipeline's ATE over it says how much its back-end adds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from deepslam.backend import drift
+from deepslam.backend.evaluation.consistency import TrackObservations, triangulate
+from deepslam.backend.mapping import project
+from deepslam.geometry import vector_angle
+
+GAUGE_SIGMA = 1e-4  # rad and m, and a share of the first baseline: tighter, and Levenberg-Marquardt stalls
+
+
+@dataclass(frozen=True)
+class LimitConfig:
+    """The batch adjustment's settings (those of the local map's where both have one)."""
+
+    max_reprojection_px: float = 3.0  # an observation this far from its track's true-pose point is dropped
+    min_triangulation_px: float = 6.0  # tracks whose rays span less (radians x focal length) are left out
+    min_initial_px: float = 10.0  # the first baseline, whose true length is kept, spans this much at the points
+    huber_px: float = 1.345  # the robust loss (px, sigma 1 px)
+    iterations: int = 100  # Levenberg-Marquardt's most iterations
+
+
+@dataclass
+class Limit:
+    """The adjusted poses (N, 4, 4) ``T_world_cam``, how many observations and tracks went in, and the ATE SE3
+    (m) of those poses against the truth."""
+
+    poses: np.ndarray
+    observations: int
+    tracks: int
+    ate_se3: float
+
+
+def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitConfig()) -> Limit:
+    """The batch bundle adjustment of every observation in ``observations`` (each frame with its true pose),
+    started at the truth."""
+    truth, focal = np.stack(observations.poses), float(observations.K[0][0, 0])
+    projections = np.stack([observations.projection(frame) for frame in range(len(truth))])
+    landmarks = []  # (track id, frames (M,), pixels (M, 2), point (3,))
+    for track, frames, pixels in observations.tracks():
+        point, kept = _initial_point(pixels, projections[frames], truth[frames, :3, 3], focal, config)
+        if point is not None:
+            landmarks.append((track, frames[kept], pixels[kept], point))
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for index, T in enumerate(truth):
+        values.insert(gtsam.symbol("x", index), gtsam.Pose3(T))
+    points = np.array([point for *_, point in landmarks]).reshape(-1, 3)
+    _hold_gauge(graph, truth, _first_baseline(truth, points, focal, config.min_initial_px))
+    pixel_noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(config.huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    )
+    calibrations = [gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]) for K in observations.K]
+    for track, frames, pixels, point in landmarks:
+        values.insert(gtsam.symbol("l", track), gtsam.Point3(point))
+        for frame, pixel in zip(frames, pixels, strict=True):
+            graph.add(
+                gtsam.GenericProjectionFactorCal3_S2(
+                    pixel, pixel_noise, gtsam.symbol("x", frame), gtsam.symbol("l", track), calibrations[frame]
+                )
+            )
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.iterations)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    poses = np.stack([result.atPose3(gtsam.symbol("x", index)).matrix() for index in range(len(truth))])
+    used = sum(len(frames) for _, frames, _, _ in landmarks)
+    return Limit(poses, used, len(landmarks), drift.ate_rmse(poses, truth))
+
+
+def _first_baseline(truth: np.ndarray, points: np.ndarray, focal: float, min_px: float) -> int | None:
+    """The first frame whose true distance from frame 0 spans ``min_px`` (radians x ``focal``) at the median
+    depth of the ``points`` (M, 3) in frame 0, as a map's first baseline must; the farthest frame from frame 0
+    where none does; None where no frame moved."""
+    distances = np.linalg.norm(truth[:, :3, 3] - truth[0, :3, 3], axis=1)
+    if not distances.max() > 0:
+        return None
+    depth = np.median(project(truth[0], np.eye(3), points)[1]) if len(points) else 1.0
+    wide = np.flatnonzero(distances / max(depth, 1e-9) * focal >= min_px)
+    return int(wide[0]) if len(wide) else int(np.argmax(distances))
+
+
+def _hold_gauge(graph: gtsam.NonlinearFactorGraph, truth: np.ndarray, baseline: int | None) -> None:
+    """Hold the first camera at its true pose and its distance to frame ``baseline`` at its true length."""
+    first = gtsam.symbol("x", 0)
+    graph.add(gtsam.PriorFactorPose3(first, gtsam.Pose3(truth[0]), gtsam.noiseModel.Isotropic.Sigma(6, GAUGE_SIGMA)))
+    if baseline is not None:
+        distance = float(np.linalg.norm(truth[baseline, :3, 3] - truth[0, :3, 3]))
+        noise = gtsam.noiseModel.Isotropic.Sigma(1, GAUGE_SIGMA * distance)
+        graph.add(gtsam.RangeFactorPose3(first, gtsam.symbol("x", baseline), distance, noise))
+
+
+def _initial_point(
+    pixels: np.ndarray, projections: np.ndarray, centres: np.ndarray, focal: float, config: LimitConfig
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """A track's point (3,) triangulated from its observations (pixels (M, 2)) with their frames' true
+    projections (M, 3, 4) and camera centres (M, 3), and which observations it keeps (M,) bool: the farthest
+    from the point's projection is dropped, and the point triangulated again, until all lie in front of their
+    camera within ``max_reprojection_px``. None where fewer than two are left or where their rays span less
+    than ``min_triangulation_px`` (an angle in pixels of the ``focal`` length)."""
+    kept = np.ones(len(pixels), bool)
+    while kept.sum() >= 2:
+        point = triangulate(pixels[kept], projections[kept])
+        if point is None:
+            break
+        projected = projections @ np.r_[point, 1.0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            distances = np.linalg.norm(projected[:, :2] / projected[:, 2:] - pixels, axis=1)
+        distances = np.where(kept & (projected[:, 2] > 0) & np.isfinite(distances), distances, np.inf)
+        distances[~kept] = -1.0
+        worst = int(np.argmax(distances))
+        if distances[worst] <= config.max_reprojection_px:
+            rays = point - centres[kept]
+            wide = vector_angle(rays[:1], rays).max() * focal >= config.min_triangulation_px
+            return (point, kept) if wide else (None, kept)
+        kept[worst] = False
+    return None, kept
