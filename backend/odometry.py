@@ -36,6 +36,7 @@ import numpy as np
 from deepslam.backend import relpose
 from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
+from deepslam.backend.keyframes import Decision, KeyframeEvidence, KeyframePolicy, MapLocation, Phase
 from deepslam.backend.mapping import Keyframe, LocalMap, project
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
@@ -86,6 +87,8 @@ class FrameResult:
     landmarks: int = 0  # the map's landmarks after this frame (scale "map"; else 0)
     shared: int = 0  # its tracks the pose could be measured from: shared with the keyframe, or landmarks
     map_points: np.ndarray | None = None  # (M, 3) the map's world points, where this frame changed the map
+    phase: Phase = Phase.TRACKING  # where the odometry stands after this frame
+    keyframe_reason: str = ""  # why it became a keyframe (``KeyframePolicy``); empty where it did not
 
     @property
     def lost(self) -> bool:
@@ -145,6 +148,7 @@ class Odometry:
         if config.scale == "none":  # the dominant plane's distance is the unit of length
             config = replace(config, plane_distance=1.0)
         self.tracker, self.config, self.step_lengths = tracker, config, step_lengths
+        self.policy = KeyframePolicy(config)
         self.origin = np.eye(4) if origin is None else np.asarray(origin, np.float64)
         self.graph: PoseGraph | None = None
         self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index
@@ -257,30 +261,21 @@ class Odometry:
 
     def process(self, image: np.ndarray, K: np.ndarray) -> FrameResult:
         """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe,
-        add it to the graph, update."""
+        add it to the graph, decide whether it becomes a keyframe, update."""
         started = time.perf_counter()
-        predicted = self._predicted(K, image.shape)
-        if predicted is not None:
-            self.tracker.expect(predicted)
-        tracks = self.tracker.track(image)
+        tracks = self._track(image, K)
         tracked = time.perf_counter()
         k, self.frames = self.frames, self.frames + 1
         self.history[k] = (_Kept(K, image.shape), tracks)
         if k == 0:
-            self.graph = PoseGraph(self.origin, self.config.graph)
-            no_pairs = np.zeros((0, 2), np.int64)
-            timings = {"frontend": 1e3 * (tracked - started)}
-            return FrameResult(0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True)
+            return self._first_frame(tracks, 1e3 * (tracked - started))
         checkpoint()  # Ctrl-C and SIGTERM take effect between the stages of a frame
         kf = self._reference(k, tracks)
-        mapped = self._map_holds(kf)
-        rel, T, pairs, measured_points = self._locate(kf, k) if mapped else self._measure(kf, k)
-        if mapped and not rel.ok:  # too few landmarks: the two-view pose
-            rel, T, pairs, measured_points = self._measure(kf, k)
+        rel, T, pairs, measured_points = self._pose(kf, k)
         measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
         T = self._add_measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
-        self._update_keyframes(k, kf, rel, T, len(pairs))
+        decision = self._update_keyframes(k, kf, rel, T, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
@@ -296,8 +291,42 @@ class Odometry:
         landmarks, map_points = self._map_state(self.keyframe == k)
         return FrameResult(
             k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
-            shared, map_points,
+            shared, map_points, self._phase(rel), decision.reason,
         )  # fmt: skip
+
+    def _track(self, image: np.ndarray, K: np.ndarray) -> Tracks:
+        """The front-end's tracks in the next frame, told first where the map expects its landmarks."""
+        predicted = self._predicted(K, image.shape)
+        if predicted is not None:
+            self.tracker.expect(predicted)
+        return self.tracker.track(image)
+
+    def _first_frame(self, tracks: Tracks, frontend_ms: float) -> FrameResult:
+        """The first frame: the graph's origin and the first keyframe."""
+        self.graph = PoseGraph(self.origin, self.config.graph)
+        no_pairs = np.zeros((0, 2), np.int64)
+        timings = {"frontend": frontend_ms}
+        return FrameResult(
+            0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True,
+            phase=Phase.INITIALISING, keyframe_reason="the first frame",
+        )  # fmt: skip
+
+    def _pose(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
+        """Frame k's pose from keyframe kf (what ``_measure`` returns): located in the map where it holds kf, else
+        (or where too few landmarks are found) the two-view pose."""
+        if self._map_holds(kf):
+            located = self._locate(kf, k)
+            if located[0].ok:
+                return located
+        return self._measure(kf, k)
+
+    def _phase(self, rel: relpose.RelativePose) -> Phase:
+        """Where the odometry stands after a frame measured as ``rel``."""
+        if not rel.ok:
+            return Phase.LOST
+        if self.map is not None and not self._map_holds(self.keyframe):
+            return Phase.INITIALISING
+        return Phase.TRACKING
 
     def _predicted(self, K: np.ndarray, shape: tuple[int, int]) -> Predicted | None:
         """Where the map's landmarks should appear in the next frame (K (3, 3), image shape (H, W)): projected
@@ -345,56 +374,40 @@ class Odometry:
         self.graph.update(keep=[key for key in (self.keyframe, self.previous_keyframe) if key is not None])
         return T
 
-    def _update_keyframes(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: int) -> None:
-        """The keyframe policy. After ``reinitialise_after`` lost frames in a row tracking starts again from
-        frame k; otherwise frame k becomes the keyframe when its tracks moved ``keyframe_parallax`` pixels
-        since the current keyframe, share fewer than ``min_shared_tracks`` with it, or, measured against it,
-        fewer than that many pairs were ``confirmed`` by the front-end. The plane's distance moves on with it."""
-        current, config = self.keyframe, self.config
-        current_pairs = shared_tracks(self.history[current][1], self.history[k][1])
+    def _update_keyframes(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: int) -> Decision:
+        """Frame k, measured from keyframe kf as ``T`` (4, 4) with ``confirmed`` pairs, through the keyframe
+        decision (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``). A new
+        keyframe moves the plane's distance on, joins the map that located it, and where it was lost starts the
+        map again."""
+        current = self.keyframe
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
-        if self.lost_in_a_row >= config.reinitialise_after:
+        started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
+        decision = self.policy.decide(self._evidence(k, kf, confirmed, started))
+        if decision.restart:
             self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
-        elif self._starts_map(k, kf, rel, T):
-            self.previous_keyframe, self.keyframe = current, k
-        elif (
-            len(current_pairs) < config.min_shared_tracks
-            or (not self._starting_map() and self._parallax(current, k, current_pairs) >= config.keyframe_parallax)
-            or (kf == current and confirmed < config.min_shared_tracks)
-            or self._map_thinning(current, len(self.history[k][1].ids))
-        ):
-            if rel.ok and kf == current:
+        elif decision.keyframe:
+            if rel.ok and kf == current and not started:
                 self._update_plane_distance(rel, T)
             self.previous_keyframe, self.keyframe = current, k
-            if rel.ok and self._map_holds(kf):
+            if rel.ok and not started and self._map_holds(kf):
                 self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
                 self._add_adjusted(k)
         if self.map is not None and self.keyframe == k and not rel.ok:
-            self.map = LocalMap(config.map)  # tracking starts again from frame k: so does the map
-        self.first_baseline &= not self._map_holds(self.keyframe) and k < config.map.start_within
+            self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
+        self.first_baseline &= not self._map_holds(self.keyframe) and k < self.config.map.start_within
+        return decision
 
-    def _starting_map(self) -> bool:
-        """Whether a map is waiting to start from the current keyframe (which then stays while it shares
-        ``min_shared_tracks`` tracks, so that the baseline can grow)."""
-        return self.map is not None and not self.map.started
-
-    def _map_thinning(self, current: int, tracks: int) -> bool:
-        """The map's keyframe policy: the last frame, located against the current keyframe, was located with
-        fewer than ``map.coverage`` of the landmarks the first frame located against it had, or fewer than
-        ``map.min_located_share`` of its ``tracks``, or it moved ``keyframe_parallax`` pixels away from the keyframe
-        (as an angle at the landmarks' median depth: new landmarks can be triangulated). While PnP still locates
-        ``map.min_located`` landmarks, the first two rules wait until that angle reaches ``map.min_triangulation_px``:
-        a keyframe closer than that triangulates nothing new, and a sparse map would otherwise make every frame one."""
-        if not (self._map_holds(current) and self.first_located is not None and self.first_located[0] == current):
-            return False
-        config = self.config.map
-        if self.baseline_px < config.min_triangulation_px and self.located >= config.min_located:
-            return False
-        return (
-            self.located < config.coverage * self.first_located[1]
-            or self.located < config.min_located_share * tracks
-            or self.baseline_px >= self.config.keyframe_parallax
-        )
+    def _evidence(self, k: int, kf: int, confirmed: int, started: bool) -> KeyframeEvidence:
+        """What frame k, measured from keyframe kf, showed against the current keyframe."""
+        current = self.keyframe
+        pairs = shared_tracks(self.history[current][1], self.history[k][1])
+        location = None
+        if self._map_holds(current) and self.first_located is not None and self.first_located[0] == current:
+            location = MapLocation(self.located, self.first_located[1], self.baseline_px)
+        return KeyframeEvidence(
+            self.lost_in_a_row, started, len(pairs), self._parallax(current, k, pairs), kf == current, confirmed,
+            self.map is not None and not self.map.started, len(self.history[k][1].ids), location,
+        )  # fmt: skip
 
     def _keyframe(self, k: int, T_world_cam: np.ndarray) -> Keyframe:
         """Stored frame k as a keyframe of the map at ``T_world_cam`` (4, 4)."""

@@ -27,8 +27,9 @@ class FrameDiagnostics:
     relative pose: the estimate is a guess) and why, the median error (px) of its tracks against the
     simulator's truth (from the frame before), the position error (m) of its estimate, whether it became a
     keyframe, the median error (px) against truth of the pairs its pose was measured from (the
-    keyframe's points and this frame's, as measured; NaN where there is no truth), and the landmarks of the
-    map after it (0 without a map)."""
+    keyframe's points and this frame's, as measured; NaN where there is no truth), the landmarks of the
+    map after it (0 without a map), the odometry's phase after it (initialising, tracking, lost; empty in older
+    logs) and why it became a keyframe (empty where it did not)."""
 
     tracks: int
     inliers: int
@@ -39,6 +40,8 @@ class FrameDiagnostics:
     keyframe: bool = False
     pair_error_px: float = float("nan")
     landmarks: int = 0
+    phase: str = ""
+    keyframe_reason: str = ""
 
 
 @dataclass

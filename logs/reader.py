@@ -262,6 +262,7 @@ def _apply(frame: dict, topic: str, message) -> None:
             float(message.correspondence_error_px), float(message.position_error_m), bool(message.keyframe),
             float(getattr(message, "pair_error_px", float("nan"))),  # logs of 0.2.0 lack it
             int(getattr(message, "landmarks", 0)),  # logs before the map lack it
+            getattr(message, "phase", ""), getattr(message, "keyframe_reason", ""),  # older logs lack them
         )  # fmt: skip
     elif topic == "/frontend/correspondences":
         frame["correspondences"] = Correspondences(

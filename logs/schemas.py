@@ -65,7 +65,7 @@ _DEFINITIONS = {
         "# how the front-end and odometry did on one frame; NaN where a figure needs truth the run lacks\n"
         "std_msgs/Header header\nuint32 tracks\nuint32 inliers\nbool lost\nstring reason\n"
         "float64 correspondence_error_px\nfloat64 position_error_m\nbool keyframe\nfloat64 pair_error_px\n"
-        "uint32 landmarks"
+        "uint32 landmarks\nstring phase\nstring keyframe_reason"
     ),
     "deepslam_msgs/Correspondences": (
         "# matches between the reference keyframe's tracks and this frame's, and the relative pose from them\n"

@@ -341,4 +341,5 @@ def _diagnostics_message(frame: LogFrame) -> dict:
     return {"header": _header(frame.stamp_ns, CAMERA_FRAME), "tracks": int(d.tracks), "inliers": int(d.inliers),
             "lost": bool(d.lost), "reason": d.reason, "correspondence_error_px": float(d.correspondence_error_px),
             "position_error_m": float(d.position_error_m), "keyframe": bool(d.keyframe),
-            "pair_error_px": float(d.pair_error_px), "landmarks": int(d.landmarks)}  # fmt: skip
+            "pair_error_px": float(d.pair_error_px), "landmarks": int(d.landmarks), "phase": d.phase,
+            "keyframe_reason": d.keyframe_reason}  # fmt: skip

@@ -60,6 +60,11 @@ def test_run_reads_back_bit_for_bit(oracle_log):
     for frame, diagnostics in zip(frames, result["diagnostics"], strict=True):  # per-frame figures, as computed
         assert frame.diagnostics.tracks == diagnostics.tracks == len(frame.tracks) and not frame.diagnostics.lost
         assert frame.diagnostics.position_error_m == pytest.approx(diagnostics.position_error_m)
+        assert (frame.diagnostics.phase, frame.diagnostics.keyframe_reason) == (
+            diagnostics.phase, diagnostics.keyframe_reason
+        )  # fmt: skip
+        assert frame.diagnostics.phase in ("initialising", "tracking")
+    assert frames[0].diagnostics.keyframe_reason == "the first frame"
     assert np.isnan(frames[0].diagnostics.correspondence_error_px)  # nothing tracked into the first frame
     assert 0.3 < np.nanmedian([f.diagnostics.correspondence_error_px for f in frames]) < 1.2  # 0.5 px noise
     pair_errors = [f.diagnostics.pair_error_px for f in frames]

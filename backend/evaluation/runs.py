@@ -182,6 +182,8 @@ def _diagnostics(
         result.keyframe,
         _median(frame_pair_errors),
         result.landmarks,
+        result.phase.value,
+        result.keyframe_reason,
     )
 
 
