@@ -26,16 +26,19 @@ class _Parser(argparse.ArgumentParser):
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    """Help that shows each default once, as it would be typed (values apart by spaces), and keeps the
-    descriptions' line breaks. No default is shown where there is none, where the text already says it, or
-    for a flag that is off."""
+    """Help that shows each default once, as it would be typed (values apart by spaces; a flag on or off), and
+    keeps the descriptions' line breaks. No default is shown where there is none or where the text already says
+    it."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         default = action.default
-        if "default" in text or default is None or default is False or default == argparse.SUPPRESS or action.required:
+        if "default" in text or default is None or default == argparse.SUPPRESS or action.required:
             return text
-        shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else str(default)
+        if isinstance(default, bool):
+            shown = "on" if default else "off"
+        else:
+            shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else str(default)
         return f"{text} (default: {shown.replace('%', '%%')})"
 
 

@@ -111,8 +111,13 @@ def add_options(parser: argparse.ArgumentParser, config: type, exclude: tuple[st
         kwargs = _argument(hints[field.name], meta)
         kwargs.update({key: meta[key] for key in ("metavar", "choices") if key in meta})
         default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
-        text = meta["help"] + (f" (at most {meta['max']:g})" if "max" in meta else "")
+        text = meta["help"] + (f" (at most {_as_typed(meta['max'])})" if "max" in meta else "")
         group.add_argument(flag, dest=field.name, default=default, help=text, **kwargs)
+
+
+def _as_typed(value: float) -> str:
+    """A bound as one would type it: whole numbers in full (4294967295, not 4.29497e+09)."""
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
 
 
 def from_args(config: type, args: argparse.Namespace, **overrides: Any):

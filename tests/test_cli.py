@@ -38,6 +38,14 @@ def test_every_command_explains_its_options(capsys):
         assert "Config options" not in out and "SourceOptions" not in out  # groups say what they set
 
 
+def test_help_shows_flags_on_or_off_and_integer_maxima_in_full(capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    flat = " ".join(capsys.readouterr().out.split())
+    assert "MagicWarp matches (default: off)" in flat and "(at most 4294967295) (default: 0)" in flat  # --seed
+    assert not re.search(r"\(at most [0-9.]+e\+", flat)  # no 4.29497e+09
+
+
 def test_contract_flags_of_run():
     args = build_parser().parse_args(
         ["run", "--frontend", "classical", "--frames", "7", "--seed", "3", "--out", "x.mcap"]
