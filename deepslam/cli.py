@@ -16,6 +16,7 @@ from deepslam.errors import InputError
 from deepslam.options import add_options, from_args, number_type
 
 log = logging.getLogger("deepslam")
+MAX_SCALE_DRIFT = 2.0  # a run whose scale drifts more than this (or under its inverse) is warned of
 
 
 class _Parser(argparse.ArgumentParser):
@@ -184,6 +185,12 @@ def _print_summary(summary: dict, scale: str) -> None:
         print("  (ate: RMSE of positions after alignment, m; rpe: mean over consecutive frames, m and deg)")
     if "track_error_px" in summary:
         print("  (*_error_px: medians against the simulator's truth)")
+    drifted = summary.get("scale_drift", 1.0)
+    if not 1 / MAX_SCALE_DRIFT <= drifted <= MAX_SCALE_DRIFT:
+        log.warning(
+            f"deepslam: warning: the estimate's scale drifted {drifted:.2f}x against the truth (the last quarter's "
+            "path over the first's): its later steps are measured at another scale than its first"
+        )
 
 
 def _run(args: argparse.Namespace) -> None:

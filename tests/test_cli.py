@@ -62,6 +62,19 @@ def test_run_and_drift_end_to_end(tmp_path, capsys):
     assert (tmp_path / "drift" / "drift.png").exists()
 
 
+@pytest.mark.parametrize("scale_drift, warned", [(1.3, False), (0.6, False), (2.5, True), (0.4, True)])
+def test_a_summary_warns_of_a_scale_that_drifted_beyond_twice(scale_drift, warned, capsys, caplog):
+    from deepslam.cli import _print_summary, log
+
+    log.addHandler(caplog.handler)  # the command's logger may not propagate once main() configured it
+    try:
+        _print_summary({"ate_se3": 0.1, "ate_sim3": 0.05, "scale_drift": scale_drift}, "map")
+    finally:
+        log.removeHandler(caplog.handler)
+    assert f"scale_drift          {scale_drift:.4f}" in capsys.readouterr().out
+    assert ("scale drifted" in caplog.text) == warned and (f"{scale_drift:.2f}x" in caplog.text) == warned
+
+
 def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, capsys):
     log, folder = str(tmp_path / "r.mcap"), str(tmp_path / "eval")
     for argv, message in [  # options checked before any work starts, the option named
