@@ -46,6 +46,7 @@ class MapConfig:
     min_located_share: float = 0.3  # ... or fewer than this share of its tracks makes a keyframe
     huber_px: float = 1.345  # the bundle adjustment's robust loss (px, sigma 1 px)
     iterations: int = 10  # Levenberg-Marquardt iterations a bundle adjustment takes at most
+    fixed_keyframes: int = 6  # keyframes that left the window last, held fixed where they observe its landmarks
     predict: bool = True  # the front-end looks for a landmark's track where the map projects it (constant motion)
 
     def __post_init__(self):
@@ -54,6 +55,8 @@ class MapConfig:
                 f"the map's window must hold at least 2 keyframes, PnP at least 6 landmarks and the first map at "
                 f"least as many, got {self.window}, {self.min_located}, {self.min_initial_landmarks}"
             )
+        if self.fixed_keyframes < 0:
+            raise InputError(f"the map's fixed keyframes must be 0 or more, got {self.fixed_keyframes}")
         thresholds = (
             self.pnp_px,
             self.max_reprojection_px,

@@ -8,11 +8,14 @@ chooses it: a true length where the input has one, else 1), and the map carries 
 
 Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors with a
 Huber loss: the window's keyframe poses and the landmarks two of them observe; the window's oldest keyframe is
-held fixed and its distance to the next one kept (a ``RangeFactorPose3``): gauge and scale, and the map's
-first two keyframes are adjusted as soon as it starts, which it does only once their marginal covariance
-determines the direction between them. Observations behind a camera or farther than
-``max_reprojection_px`` from their landmark's projection afterwards are dropped, as are landmarks left with
-fewer than two; landmarks that no keyframe of the window observes are dropped with the keyframes that leave it.
+held fixed and its distance to the next one kept (a ``RangeFactorPose3``): gauge and scale. The last
+``fixed_keyframes`` keyframes to leave the window stay in it, held where they are, with their observations of
+its landmarks: the landmarks keep the wider baselines older views gave them (without, a window of keyframes
+a few pixels apart let their depths and its scale wander). The map's first two keyframes are adjusted as soon as
+it starts, which it does only once their marginal covariance determines the direction between them.
+Observations behind a camera or farther than ``max_reprojection_px`` from their landmark's projection afterwards
+are dropped, as are landmarks left with fewer than two; landmarks that no keyframe of the window observes are
+dropped with the keyframes that leave it.
 """
 
 from __future__ import annotations
@@ -103,6 +106,7 @@ class LocalMap:
         self.config = config or MapConfig()
         self.landmarks: dict[int, np.ndarray] = {}  # track id -> world point (3,)
         self.keyframes: list[Keyframe] = []  # the window, oldest first
+        self.retired: list[Keyframe] = []  # keyframes that left the window, held fixed in its adjustment
 
     @property
     def started(self) -> bool:
@@ -127,7 +131,7 @@ class LocalMap:
         direction between them is known to ``max_start_deg`` (``_direction_sigma_deg``: a short or noisy
         baseline fits its points just as well turned tens of degrees, and a map started there is off for good).
         Returns how many (0 when it did not start)."""
-        self.landmarks, self.keyframes = {}, [first]
+        self.landmarks, self.keyframes, self.retired = {}, [first], []
         made = self._triangulate(second, self.config.min_initial_px)
         if made < self.config.min_initial_landmarks:
             self.landmarks, self.keyframes = {}, []
@@ -170,7 +174,9 @@ class LocalMap:
         """A new keyframe (its pose from ``locate``): new landmarks from the tracks it shares with the window,
         a local bundle adjustment, culling. Returns how many landmarks were made."""
         made = self._triangulate(keyframe)
-        self.keyframes = (self.keyframes + [keyframe])[-self.config.window :]
+        window = self.keyframes + [keyframe]
+        self.keyframes, left = window[-self.config.window :], window[: -self.config.window]
+        self.retired = (self.retired + left)[len(self.retired) + len(left) - self.config.fixed_keyframes :]
         self.adjust()
         self._cull()
         return made
@@ -257,6 +263,7 @@ class LocalMap:
                         False,
                     )  # fmt: skip
                 )
+        self._hold_retired(graph, values, seen, pixel_noise, held)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.iterations)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
@@ -266,6 +273,28 @@ class LocalMap:
             self.landmarks[track] = result.atPoint3(gtsam.symbol("l", track))
         self._drop_outliers()
         return graph, result
+
+    def _hold_retired(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        seen: dict[int, list],
+        pixel_noise: gtsam.noiseModel.Base,
+        held: gtsam.noiseModel.Base,
+    ) -> None:
+        """Add the observations of the adjusted landmarks (ids: ``seen``'s keys) by the keyframes that left the
+        window to ``graph``, their poses in ``values`` held by the prior ``held``."""
+        for position, keyframe in enumerate(self.retired):
+            observed = [(int(t), p) for t, p in zip(keyframe.ids, keyframe.points, strict=True) if int(t) in seen]
+            if not observed:
+                continue
+            pose, K = gtsam.symbol("r", position), keyframe.K
+            calibration = gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+            values.insert(pose, gtsam.Pose3(keyframe.T_world_cam))
+            graph.add(gtsam.PriorFactorPose3(pose, gtsam.Pose3(keyframe.T_world_cam), held))
+            for track, pixel in observed:
+                landmark = gtsam.symbol("l", track)
+                graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, pixel_noise, pose, landmark, calibration))
 
     def _drop_outliers(self) -> None:
         """Drop the keyframes' observations behind the camera or farther than ``max_reprojection_px`` from their

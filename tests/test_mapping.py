@@ -1,5 +1,6 @@
 """The local map (triangulation, PnP, bundle adjustment, culling) and scale "map"."""
 
+from copy import deepcopy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -57,6 +58,29 @@ def test_a_map_triangulates_locates_and_keeps_its_scale_through_bundle_adjustmen
     assert set(local_map.landmarks) <= observed  # culled with the keyframes that left
     ids, points = local_map.points()
     assert np.median(np.linalg.norm(points - world[ids], axis=1) / world[ids, 2]) < 0.03  # the first baseline's scale
+
+
+def test_keyframes_that_left_the_window_hold_its_landmarks_where_they_saw_them(rng):
+    world = _world(rng)
+    config = MapConfig(window=3, fixed_keyframes=2)
+    local_map = LocalMap(config)
+    local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.4), world, rng))
+    for index in range(2, 7):
+        local_map.add(_keyframe(index, _sideways(0.4 * index), world, rng))
+    assert [k.index for k in local_map.keyframes] == [4, 5, 6] and [k.index for k in local_map.retired] == [2, 3]
+    held = [k.T_world_cam.copy() for k in local_map.retired]
+    ids = np.array(sorted(local_map.landmarks))
+    errors = {}
+    for retired in (True, False):
+        copy = deepcopy(local_map)
+        copy.retired = copy.retired if retired else []
+        for track in ids:  # every landmark 3% off its true depth, to be mended by the views of it
+            copy.landmarks[int(track)] = world[track] * 1.03
+        copy.adjust()
+        errors[retired] = np.median(np.linalg.norm(copy.points_of(ids) - world[ids], axis=1) / world[ids, 2])
+        if retired:
+            assert all(np.allclose(k.T_world_cam, T) for k, T in zip(copy.retired, held, strict=True))  # held
+    assert errors[True] < 0.7 * errors[False], errors  # more views, wider apart: nearer the truth
 
 
 def test_a_map_does_not_start_from_too_little_parallax_and_pnp_needs_enough_landmarks(rng):
