@@ -211,9 +211,13 @@ def _replay(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation.runs import replay
     from deepslam.frontend.config import TrackerConfig
     from deepslam.inputs.source import SourceOptions
+    from deepslam.inputs.video import VIDEO_SUFFIXES
 
+    _check_inputs([args.input])
     configs = _config(args, TrackerConfig), _config(args, OdometryConfig)
     sources = _config(args, SourceOptions)
+    if args.input.suffix.lower() in VIDEO_SUFFIXES and sources.calibration is None:
+        raise _UsageError(f"{args.input}: a video carries no calibration; give --calibration FILE")
     if args.scale == "plane" and args.plane_distance is None:
         raise _UsageError("--scale plane needs --plane-distance M, the first camera's distance to the dominant plane")
     result = replay(args.input, *configs, args.out, {"version": _version()}, source_options=sources)
@@ -221,9 +225,17 @@ def _replay(args: argparse.Namespace) -> None:
     log.info(f"wrote {args.out}")
 
 
+def _check_inputs(paths: list[Path]) -> None:
+    """A missing input is a usage error (exit 2), found before any work starts."""
+    for path in paths:
+        if not path.exists():
+            raise _UsageError(f"{path}: no such file or folder")
+
+
 def _drift(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation import analysis
 
+    _check_inputs(args.logs)
     _save(analysis.analyse(args.logs, args.delta, args.limit), args.out)
     for path in (
         [path for log_path in args.logs for path in analysis.export_tum(log_path, args.out)] if args.tum else []
@@ -234,6 +246,7 @@ def _drift(args: argparse.Namespace) -> None:
 def _report(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation.report import write_report
 
+    _check_inputs(args.logs)
     if args.out.is_dir():
         raise _UsageError(f"--out {args.out} is a folder; give a file name such as report.html")
     for line in write_report(args.logs, args.out):
@@ -244,6 +257,7 @@ def _report(args: argparse.Namespace) -> None:
 def _recover(args: argparse.Namespace) -> None:
     from deepslam.logs.recover import recover
 
+    _check_inputs([args.log])
     frames, damage = recover(args.log, args.out)
     lost = f" ({damage.report(args.log, frames)})" if damage.problems or damage.dropped_frames else ""
     print(f"recovered {frames} whole frames of {args.log} into {args.out}{lost}")

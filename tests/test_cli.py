@@ -77,6 +77,8 @@ def test_a_summary_warns_of_a_scale_that_drifted_beyond_twice(scale_drift, warne
 
 def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, capsys):
     log, folder = str(tmp_path / "r.mcap"), str(tmp_path / "eval")
+    clip = tmp_path / "clip.mp4"
+    clip.write_bytes(b"not read: the missing calibration is found first")
     for argv, message in [  # options checked before any work starts, the option named
         (["run", "--frames", "1", "--out", log], "argument --frames: must lie in [2, 100000], got '1'"),
         (["run", "--size", "100", "160", "--out", log], "divisible by 8"),
@@ -101,6 +103,11 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
         ),
         (["eval", "detector", "--detectors", "Nope", "--out", folder], "unknown or unavailable detectors ['Nope']"),
         (["eval", "warp", "--out", __file__], "is a file, not a folder"),
+        (["replay", str(tmp_path / "missing.mcap"), "--out", log], "missing.mcap: no such file or folder"),
+        (["replay", str(clip), "--out", log], "clip.mp4: a video carries no calibration; give --calibration FILE"),
+        (["drift", str(tmp_path / "missing.mcap")], "missing.mcap: no such file or folder"),
+        (["report", str(tmp_path / "missing.mcap")], "missing.mcap: no such file or folder"),
+        (["recover", str(tmp_path / "missing.mcap"), "--out", log], "missing.mcap: no such file or folder"),
     ]:
         with pytest.raises(SystemExit) as exit_info:
             main(argv)
@@ -110,7 +117,6 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
     garbage.write_bytes(b"hello")
     for argv, message in [  # runtime errors: one line, exit 1
         (["drift", str(garbage)], "not an MCAP file"),
-        (["replay", str(tmp_path / "missing.mcap"), "--out", log], "no such file"),
     ]:
         assert main(argv) == 1, argv
         err = capsys.readouterr().err
