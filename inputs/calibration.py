@@ -36,6 +36,7 @@ class Calibration:
         and height) for images of ``size`` (H, W); a declared size must be the images'."""
         path = Path(path)
         data = parsing.yaml_mapping(path)
+        parsing.unknown_keys(path, data, CALIBRATION_KEYS)
         fx, fy, cx, cy = (parsing.yaml_number(data, key, path) for key in ("fx", "fy", "cx", "cy"))
         declared = _declared_size(data, path)
         if declared is not None and size is not None and declared != size:
@@ -92,6 +93,9 @@ def _declared_size(data: dict, where: Path) -> tuple[int, int] | None:
     if any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in values):
         raise SourceError(f"{where}: width and height must both be positive whole numbers, got {values[::-1]}")
     return values[0], values[1]
+
+
+CALIBRATION_KEYS = ("fx", "fy", "cx", "cy", "model", "distortion", "width", "height")
 
 
 class Rectifier:

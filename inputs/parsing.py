@@ -92,8 +92,23 @@ def yaml_mapping(path: Path, text: str | None = None) -> dict:
     return data
 
 
+def unknown_keys(path: Path, data: dict, known: tuple[str, ...]) -> None:
+    """Raise SourceError naming the first key of the YAML file ``path`` (read as ``data``) that is not one of
+    ``known``, with its line, and the known ones."""
+    unknown = [key for key in data if key not in known]
+    if not unknown:
+        return
+    node = yaml.compose(path.read_text())
+    lines = {str(key.value): key.start_mark.line + 1 for key, _ in node.value}
+    raise SourceError(
+        f"{path}, line {lines.get(str(unknown[0]), '?')}: unknown key {unknown[0]!r} (known: {', '.join(known)})"
+    )
+
+
 def yaml_number(data: dict, key: str, where: Path) -> float:
     """The finite number ``data[key]`` (not a boolean; "1e-3", which YAML 1.1 reads as text, counts)."""
+    if key not in data:
+        raise SourceError(f"{where}: {key} is missing")
     value = _as_number(data.get(key))
     if value is None:
         raise SourceError(f"{where}: {key} must be a finite number, got {data.get(key)!r}")

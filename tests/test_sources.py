@@ -274,6 +274,8 @@ def _field(name: str, value: str):
         ("calibration", lambda c: [_field("width", "-160")(c), _field("height", "-120")(c)], r"must both be positive"),
         ("calibration", _field("width", "320"), r"declares 120x320 images, the input's are 120x160"),
         ("calibration", _field("fx", "true"), r"fx must be a finite number"),
+        ("calibration", lambda c: _mend(c, "cy: ", "cyy: "), r"c.yaml, line 4: unknown key 'cyy' \(known: fx, fy"),
+        ("calibration", lambda c: c.write_text(c.read_text().replace("fy: ", "# fy: ")), r"c.yaml: fy is missing"),
         ("calibration", _field("fx", "1e300"), r"focal lengths .* are not plausible"),
         ("calibration", _field("fx", "1e-300"), r"focal lengths .* are not plausible"),
     ],
