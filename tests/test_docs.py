@@ -1,4 +1,4 @@
-"""The examples in the public docstrings run as written."""
+"""The docs: examples in the public docstrings run as written; the README stays a short reference."""
 
 import doctest
 import importlib
@@ -48,3 +48,14 @@ def test_packages_export_their_names_lazily():
     assert {"Pipeline", "PipelineConfig", "DeepslamError"} <= set(dir(deepslam)) and "Pipeline" in deepslam.__all__
     with pytest.raises(AttributeError, match="no attribute"):
         deepslam.nothing_of_that_name  # noqa: B018
+
+
+def test_the_readme_stays_a_short_reference_and_agrees_with_the_constraints():
+    from pathlib import Path
+
+    root = Path(__file__).parent.parent
+    readme = (root / "README.md").read_text()
+    assert len(readme.splitlines()) <= 200
+    assert "same kind of CPU" in readme  # the magic front-end's figures depend on it
+    wheel = "--extra-index-url https://download.pytorch.org/whl/cpu"
+    assert wheel in " ".join(readme.split()) and wheel in (root / "constraints.txt").read_text()
