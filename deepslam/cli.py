@@ -236,6 +236,9 @@ def _drift(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation import analysis
 
     _check_inputs(args.logs)
+    _check_folder(args.out)
+    if (args.out / "drift.txt").exists():
+        raise _UsageError(f"--out {args.out} holds an earlier drift's results; give another folder or remove them")
     _save(analysis.analyse(args.logs, args.delta, args.limit), args.out)
     for path in (
         [path for log_path in args.logs for path in analysis.export_tum(log_path, args.out)] if args.tum else []
@@ -380,7 +383,10 @@ def _pipeline_commands(commands) -> None:
     drift = _command(commands, "drift", "ATE/RPE/final drift of logs, side by side, with plots", _drift)
     drift.add_argument("logs", type=Path, nargs="+", help="MCAP logs holding /groundtruth/pose and /estimate/pose")
     add_options(drift, DriftConfig)
-    drift.add_argument("--out", type=Path, default=Path("out/drift"), help="folder for the PNG plots (and TUM files)")
+    drift.add_argument(
+        "--out", type=Path, default=Path("out/drift"),
+        help="folder for drift.txt, drift.json, drift.png (and the TUM files); never one with an earlier drift's",
+    )  # fmt: skip
     drift.add_argument("--tum", action="store_true", help="also export both trajectories in TUM format")
 
 

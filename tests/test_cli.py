@@ -60,6 +60,11 @@ def test_run_and_drift_end_to_end(tmp_path, capsys):
     assert "ate_se3" in out and "scale: map" in out and "scale_drift" in out and log.exists()  # the default scale
     assert main(["drift", str(log), "--out", str(tmp_path / "drift"), "--tum"]) == 0
     assert (tmp_path / "drift" / "drift.png").exists()
+    written = (tmp_path / "drift" / "drift.txt").read_bytes()
+    with pytest.raises(SystemExit) as exit_info:  # never over earlier results
+        main(["drift", str(log), "--out", str(tmp_path / "drift")])
+    assert exit_info.value.code == 2 and "holds an earlier drift's results" in capsys.readouterr().err
+    assert (tmp_path / "drift" / "drift.txt").read_bytes() == written
 
 
 @pytest.mark.parametrize("scale_drift, warned", [(1.3, False), (0.6, False), (2.5, True), (0.4, True)])
@@ -116,7 +121,7 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
     garbage = tmp_path / "g.mcap"
     garbage.write_bytes(b"hello")
     for argv, message in [  # runtime errors: one line, exit 1
-        (["drift", str(garbage)], "not an MCAP file"),
+        (["drift", str(garbage), "--out", folder], "not an MCAP file"),
     ]:
         assert main(argv) == 1, argv
         err = capsys.readouterr().err
