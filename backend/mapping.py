@@ -70,6 +70,18 @@ def project(T_world_cam: np.ndarray, K: np.ndarray, points: np.ndarray) -> tuple
     return pixels[:, :2] / np.where(np.abs(depth) > 1e-12, depth, 1e-12)[:, None], depth
 
 
+def calibration(K: np.ndarray) -> gtsam.Cal3_S2:
+    """gtsam's pinhole calibration of K (3, 3)."""
+    return gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+
+
+def pixel_noise(huber_px: float) -> gtsam.noiseModel.Base:
+    """The noise of a projection factor: 1 px a coordinate, Huber-robust from ``huber_px``."""
+    return gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    )
+
+
 def _pose_from_pnp(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     T_cam_world = np.eye(4)
     T_cam_world[:3, :3] = cv2.Rodrigues(rvec)[0]
@@ -233,10 +245,7 @@ class LocalMap:
         seen = {track: views for track, views in self._observations().items() if len(views) >= 2}
         if len(self.keyframes) < 2 or not seen:
             return None
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        pixel_noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
-        )
+        graph, values, noise = gtsam.NonlinearFactorGraph(), gtsam.Values(), pixel_noise(self.config.huber_px)
         for position, keyframe in enumerate(self.keyframes):
             values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
         first, second = (gtsam.symbol("x", position) for position in (0, 1))
@@ -248,14 +257,14 @@ class LocalMap:
                 first, second, float(distance), gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * distance + 1e-9)
             )
         )
-        calibrations = [gtsam.Cal3_S2(k.K[0, 0], k.K[1, 1], k.K[0, 1], k.K[0, 2], k.K[1, 2]) for k in self.keyframes]
+        calibrations = [calibration(keyframe.K) for keyframe in self.keyframes]
         for track, views in seen.items():
             values.insert(gtsam.symbol("l", track), gtsam.Point3(self.landmarks[track]))
             for position, pixel in views:
                 graph.add(
                     gtsam.GenericProjectionFactorCal3_S2(
                         pixel,
-                        pixel_noise,
+                        noise,
                         gtsam.symbol("x", position),
                         gtsam.symbol("l", track),
                         calibrations[position],
@@ -263,7 +272,7 @@ class LocalMap:
                         False,
                     )  # fmt: skip
                 )
-        self._hold_retired(graph, values, seen, pixel_noise, held)
+        self._hold_retired(graph, values, seen, noise, held)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.iterations)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
@@ -279,22 +288,21 @@ class LocalMap:
         graph: gtsam.NonlinearFactorGraph,
         values: gtsam.Values,
         seen: dict[int, list],
-        pixel_noise: gtsam.noiseModel.Base,
+        noise: gtsam.noiseModel.Base,
         held: gtsam.noiseModel.Base,
     ) -> None:
-        """Add the observations of the adjusted landmarks (ids: ``seen``'s keys) by the keyframes that left the
-        window to ``graph``, their poses in ``values`` held by the prior ``held``."""
+        """Add the observations (with ``noise``) of the adjusted landmarks (ids: ``seen``'s keys) by the keyframes
+        that left the window to ``graph``, their poses in ``values`` held by the prior ``held``."""
         for position, keyframe in enumerate(self.retired):
             observed = [(int(t), p) for t, p in zip(keyframe.ids, keyframe.points, strict=True) if int(t) in seen]
             if not observed:
                 continue
-            pose, K = gtsam.symbol("r", position), keyframe.K
-            calibration = gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+            pose, camera = gtsam.symbol("r", position), calibration(keyframe.K)
             values.insert(pose, gtsam.Pose3(keyframe.T_world_cam))
             graph.add(gtsam.PriorFactorPose3(pose, gtsam.Pose3(keyframe.T_world_cam), held))
             for track, pixel in observed:
                 landmark = gtsam.symbol("l", track)
-                graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, pixel_noise, pose, landmark, calibration))
+                graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, pose, landmark, camera))
 
     def _drop_outliers(self) -> None:
         """Drop the keyframes' observations behind the camera or farther than ``max_reprojection_px`` from their

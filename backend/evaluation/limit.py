@@ -19,7 +19,7 @@ import numpy as np
 
 from deepslam.backend import drift
 from deepslam.backend.evaluation.consistency import TrackObservations, triangulate
-from deepslam.backend.mapping import project
+from deepslam.backend.mapping import calibration, pixel_noise, project
 from deepslam.geometry import vector_angle
 
 GAUGE_SIGMA = 1e-4  # rad and m, and a share of the first baseline: tighter, and Levenberg-Marquardt stalls
@@ -62,16 +62,13 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
         values.insert(gtsam.symbol("x", index), gtsam.Pose3(T))
     points = np.array([point for *_, point in landmarks]).reshape(-1, 3)
     _hold_gauge(graph, truth, _first_baseline(truth, points, focal, config.min_initial_px))
-    pixel_noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(config.huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
-    )
-    calibrations = [gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]) for K in observations.K]
+    noise, calibrations = pixel_noise(config.huber_px), [calibration(K) for K in observations.K]
     for track, frames, pixels, point in landmarks:
         values.insert(gtsam.symbol("l", track), gtsam.Point3(point))
         for frame, pixel in zip(frames, pixels, strict=True):
             graph.add(
                 gtsam.GenericProjectionFactorCal3_S2(
-                    pixel, pixel_noise, gtsam.symbol("x", frame), gtsam.symbol("l", track), calibrations[frame]
+                    pixel, noise, gtsam.symbol("x", frame), gtsam.symbol("l", track), calibrations[frame]
                 )
             )
     params = gtsam.LevenbergMarquardtParams()
