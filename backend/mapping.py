@@ -188,7 +188,8 @@ class LocalMap:
         made = self._triangulate(keyframe)
         window = self.keyframes + [keyframe]
         self.keyframes, left = window[-self.config.window :], window[: -self.config.window]
-        self.retired = (self.retired + left)[len(self.retired) + len(left) - self.config.fixed_keyframes :]
+        retired = self.retired + left
+        self.retired = retired[max(0, len(retired) - self.config.fixed_keyframes) :]
         self.adjust()
         self._cull()
         return made

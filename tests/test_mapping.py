@@ -83,6 +83,18 @@ def test_keyframes_that_left_the_window_hold_its_landmarks_where_they_saw_them(r
     assert errors[True] < 0.7 * errors[False], errors  # more views, wider apart: nearer the truth
 
 
+def test_the_map_keeps_every_keyframe_that_left_its_window_up_to_its_fixed_keyframes(rng):
+    world = _world(rng)
+    local_map = LocalMap(MapConfig(window=2, fixed_keyframes=6))
+    local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.4), world, rng))
+    for index in range(2, 7):
+        local_map.add(_keyframe(index, _sideways(0.4 * index), world, rng))
+        assert [k.index for k in local_map.retired] == list(range(index - 1))  # all that left, fewer than six
+    for index in range(7, 10):
+        local_map.add(_keyframe(index, _sideways(0.4 * index), world, rng))
+    assert [k.index for k in local_map.retired] == list(range(2, 8))  # the last six
+
+
 def test_a_map_does_not_start_from_too_little_parallax_and_pnp_needs_enough_landmarks(rng):
     world = _world(rng)
     local_map = LocalMap()
