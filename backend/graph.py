@@ -176,9 +176,20 @@ class PoseGraph:
             return np.stack([estimate.atPose3(k).matrix() for k in range(self.count)])
         return np.stack([self._estimates[k] for k in range(self.count)])
 
+    def __contains__(self, key: int) -> bool:
+        """Whether the graph has a pose ``key`` (in the window or marginalised)."""
+        return key in self._estimates
+
     def covariance(self, key: int) -> np.ndarray:
         """Marginal covariance (6, 6) of a pose in the window, rotation first, in the pose's tangent space."""
         return self.solver.marginalCovariance(key)
+
+    def covariance_through(self, key: int, T: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+        """The marginal covariance (6, 6) a pose would have, were it added seen from pose ``key`` as ``T`` (4, 4)
+        with ``sigmas`` (6,) and no other factor: the key's carried through ``T`` plus the measurement's own
+        (a robust factor weighs 1 at the zero residual such a pose has)."""
+        adjoint = gtsam.Pose3(T).inverse().AdjointMap()
+        return adjoint @ self.covariance(key) @ adjoint.T + np.diag(np.asarray(sigmas, np.float64) ** 2)
 
     def batch_solve(self) -> np.ndarray:
         """Levenberg-Marquardt on the whole graph from the initial guesses, for cross-checking ISAM2

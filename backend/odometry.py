@@ -1,4 +1,4 @@
-"""Monocular visual odometry: front-end tracks -> relative poses -> scale -> ISAM2 pose graph.
+"""Monocular visual odometry: front-end tracks -> relative poses or a local map -> scale -> ISAM2 pose graph.
 
 Every frame is measured against the current keyframe (a wide baseline: frame-to-frame parallax is a
 pixel or two, too little for H or E), with an extra factor to the keyframe before it when they still
@@ -20,6 +20,8 @@ each frame is located in that local map by PnP against the current keyframe's la
 looks for where the map projects them from the pose the last step, repeated, predicts), every keyframe adds
 landmarks and a local bundle adjustment, and the map carries the scale of its first baseline: its true length
 where the caller passes ``step_lengths`` (an input with truth), else the unit (about one keyframe's motion).
+The pose graph holds the keyframes and the frames measured two-view; a frame located in the map joins it only as
+a keyframe, and until then its estimate is its keyframe's composed with its measurement (``Odometry.estimate``).
 Two-view poses before the first map take their lengths from that same source for at most ``map.start_within``
 frames; later, and where PnP finds no pose or no map holds the keyframe, in proportion to their track motion.
 """
@@ -45,11 +47,26 @@ from deepslam.interrupts import checkpoint
 
 BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
 ADJUSTED_AGREEMENT = (3.0, 0.5)  # ... if within this many degrees and this share of its length of the graph's
+# ISAM2 updates (each one Gauss-Newton step) a keyframe located in the map adds to the graph once its factors are in:
+# the frames located in the map between keyframes, which the graph does not hold, no longer update it
+KEYFRAME_UPDATES = 3
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
 
 
 StepLengths = Callable[[int, int], float | None]
 """The true distance (m) between the cameras of frames i and j (indices in processing order), None if unknown."""
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Frame ``index``'s pose ``T`` (4, 4) seen from keyframe ``keyframe`` (``T_kf_frame``, metric), as measured
+    (``rel``), with the sigmas (6,) the graph takes it with (rotation (rad) first, then translation (m))."""
+
+    keyframe: int
+    index: int
+    rel: relpose.RelativePose
+    T: np.ndarray
+    sigmas: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -65,7 +82,7 @@ class FrameResult:
     """What the odometry made of one frame: tracks, the relative pose to its reference keyframe (None for
     the first), the current estimate ``T_world_cam`` (4, 4), its covariance (6, 6) or None,
     the correspondences (K, 2) as indices into the reference keyframe's and this frame's tracks, the
-    scaled measurement ``T_ref_cur`` (4, 4) that went into the graph, the index of that reference
+    scaled measurement ``T_ref_cur`` (4, 4) of this frame from that keyframe, the index of that reference
     keyframe, stage timings, and this frame's points of the correspondences (K, 2) where the pose was
     measured from them (the front-end may have polished the tracked positions: ``Tracker.confirm``).
     A frame that is not a keyframe reports those points in its ``tracks``; a keyframe keeps the positions
@@ -165,6 +182,7 @@ class Odometry:
         self.located = 0  # landmarks the last frame was located with (map only)
         self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
         self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
+        self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -193,7 +211,7 @@ class Odometry:
         ids = tracks_k.ids[pairs[:, 1]]
         landmark = self.map.known(ids)
         pairs, points = pairs[landmark], points[landmark]
-        location = self.map.locate(ids[landmark], points, frame_k.K, self._in_map(kf, self.graph.pose(k - 1)))
+        location = self.map.locate(ids[landmark], points, frame_k.K, self._in_map(kf, self.estimate(k - 1)))
         self.located = int(location.inliers.sum())
         if self.first_located is None or self.first_located[0] != kf:
             self.first_located = (kf, self.located)
@@ -237,7 +255,7 @@ class Odometry:
         )  # fmt: skip
         rel, gate = estimate(self.config.method), self.config.max_rotation_jump
         if gate and rel.ok:
-            previous = np.linalg.inv(self.graph.pose(i)) @ self.graph.pose(j - 1)  # frame j - 1 seen from frame i
+            previous = np.linalg.inv(self.graph.pose(i)) @ self.estimate(j - 1)  # frame j - 1 seen from frame i
             if _turn(rel, previous)[0] > gate:  # another model may agree with the motion
                 turns = [(_turn(other, previous), other) for other in map(estimate, FALLBACK_METHODS)]
                 (rotation, translation), closest = min(turns, key=lambda turn: turn[0])
@@ -260,8 +278,8 @@ class Odometry:
                 self.plane_distance = distance
 
     def process(self, image: np.ndarray, K: np.ndarray) -> FrameResult:
-        """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe,
-        add it to the graph, decide whether it becomes a keyframe, update."""
+        """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe (in
+        the map where it holds the keyframe), decide whether it becomes a keyframe, update the graph and the map."""
         started = time.perf_counter()
         tracks = self._track(image, K)
         tracked = time.perf_counter()
@@ -274,14 +292,16 @@ class Odometry:
         rel, T, pairs, measured_points = self._pose(kf, k)
         measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
-        T = self._add_measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
-        decision = self._update_keyframes(k, kf, rel, T, len(pairs))
+        T, measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
+        if rel.model != "pnp":  # a frame located in the map joins the graph only as a keyframe
+            self._add_measurement(measurement)
+        decision = self._update_keyframes(measurement, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
-        pose = self.graph.pose(k)
+        pose = self.estimate(k)
         optimised = time.perf_counter()
-        covariance = self.graph.covariance(k) if self.config.covariance else None
+        covariance = self._covariance(k) if self.config.covariance else None
         timings = {
             "frontend": 1e3 * (tracked - started),
             "relative_pose": 1e3 * (measured - tracked),
@@ -334,7 +354,7 @@ class Odometry:
         current keyframe (or with ``map.predict`` off)."""
         if not (self.config.map.predict and self._map_holds(self.keyframe) and self.frames >= 2):
             return None
-        last, before = (self._in_map(self.keyframe, self.graph.pose(self.frames - step)) for step in (1, 2))
+        last, before = (self._in_map(self.keyframe, self.estimate(self.frames - step)) for step in (1, 2))
         ids, world = self.map.points()
         pixels, depth = project(last @ np.linalg.inv(before) @ last, K, world)
         seen = (depth > 0) & in_image(pixels, shape)
@@ -354,35 +374,63 @@ class Odometry:
             return 0, None
         return len(self.map.landmarks), self.map.points()[1] if changed and self.map.started else None
 
-    def _add_measurement(
+    def _measurement(
         self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float
-    ) -> np.ndarray:
-        """Add frame k to the graph with its measured pose ``T`` (4, 4) from keyframe kf (where no pose could be
-        measured: no motion since frame k - 1, very uncertain, so that the graph stays connected), link it
-        to the keyframe before, and update; returns the relative pose that went into the graph."""
+    ) -> tuple[np.ndarray, Measurement]:
+        """Frame k's measured pose ``T`` (4, 4) from keyframe kf, with ``parallax`` (px), as the graph would take
+        it; where no pose could be measured, no motion since frame k - 1, very uncertain, so that the graph stays
+        connected. Returns that pose and the measurement; frame k's estimate is the keyframe's composed with it."""
         if rel.ok:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
             )
             self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
         else:
-            T = np.linalg.inv(self.graph.pose(kf)) @ self.graph.pose(k - 1)
+            T = np.linalg.inv(self.graph.pose(kf)) @ self.estimate(k - 1)
             sigmas = np.array([0.5] * 3 + [1.0] * 3)
-        self.graph.add_pose(k, self.graph.pose(kf) @ T)
-        self.graph.add_between(kf, k, T, sigmas)
+        measurement = Measurement(kf, k, rel, T, sigmas)
+        self.measured[k] = measurement
+        return T, measurement
+
+    def _add_measurement(self, measurement: Measurement) -> None:
+        """Add a measured frame to the graph, linked to its keyframe (and to the keyframe before where they share
+        tracks), and update."""
+        kf, k = measurement.keyframe, measurement.index
+        self.graph.add_pose(k, self.graph.pose(kf) @ measurement.T)
+        self.graph.add_between(kf, k, measurement.T, measurement.sigmas)
         self._link_previous_keyframe(k, kf)
         self.graph.update(keep=[key for key in (self.keyframe, self.previous_keyframe) if key is not None])
-        return T
+        del self.measured[k]
 
-    def _update_keyframes(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: int) -> Decision:
-        """Frame k, measured from keyframe kf as ``T`` (4, 4) with ``confirmed`` pairs, through the keyframe
-        decision (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``). A new
-        keyframe moves the plane's distance on, joins the map that located it, and where it was lost starts the
-        map again."""
-        current = self.keyframe
+    def estimate(self, index: int) -> np.ndarray:
+        """The latest estimate (4, 4) ``T_world_cam`` of frame ``index``: the graph's, or for a frame the graph
+        does not hold (located in the map), its keyframe's composed with the measurement."""
+        measurement = self.measured.get(index)
+        if measurement is None:
+            return self.graph.pose(index)
+        return self.graph.pose(measurement.keyframe) @ measurement.T
+
+    def _covariance(self, index: int) -> np.ndarray:
+        """The marginal covariance (6, 6) of frame ``index``'s estimate, rotation first, in its tangent space: the
+        graph's, or for a frame the graph does not hold, its keyframe's carried through the measurement plus the
+        measurement's own (what the graph would give a pose with that one factor)."""
+        measurement = self.measured.get(index)
+        if measurement is None:
+            return self.graph.covariance(index)
+        return self.graph.covariance_through(measurement.keyframe, measurement.T, measurement.sigmas)
+
+    def _update_keyframes(self, measurement: Measurement, confirmed: int) -> Decision:
+        """Frame k, measured from keyframe kf with ``confirmed`` pairs, through the keyframe decision
+        (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``). A new
+        keyframe joins the graph, moves the plane's distance on, joins the map that located it, and where it was
+        lost starts the map again."""
+        current, k, kf, rel, T = self.keyframe, measurement.index, measurement.keyframe, measurement.rel, measurement.T
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
         started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
         decision = self.policy.decide(self._evidence(k, kf, confirmed, started))
+        joins = decision.keyframe and k in self.measured  # located in the map: it joins the graph now
+        if joins:
+            self._add_measurement(measurement)
         if decision.restart:
             self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
         elif decision.keyframe:
@@ -392,6 +440,8 @@ class Odometry:
             if rel.ok and not started and self._map_holds(kf):
                 self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
                 self._add_adjusted(k)
+        if joins:
+            self.graph.refine(KEYFRAME_UPDATES)
         if self.map is not None and self.keyframe == k and not rel.ok:
             self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
         self.first_baseline &= not self._map_holds(self.keyframe) and k < self.config.map.start_within
@@ -523,5 +573,5 @@ class Odometry:
             )
 
     def poses(self) -> np.ndarray:
-        """The optimised trajectory (N, 4, 4) ``T_world_cam``."""
-        return self.graph.poses()
+        """The optimised trajectory (N, 4, 4) ``T_world_cam``: each frame's latest estimate."""
+        return np.stack([self.estimate(index) for index in range(self.frames)])

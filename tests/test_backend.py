@@ -229,6 +229,25 @@ def test_isam2_agrees_with_batch_levenberg_marquardt(rng):
     assert covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > 0)
 
 
+def test_a_pose_seen_from_one_other_has_the_covariance_that_pose_carries_through_the_measurement(rng):
+    graph = PoseGraph(np.eye(4))
+    sigmas = np.array([0.02] * 3 + [0.1] * 3)
+    for k in (1, 2):
+        step = pose(rng.normal(0, 0.1, 3), rng.normal(0, 0.5, 3))
+        graph.add_pose(k, graph.pose(k - 1) @ step)
+        graph.add_between(k - 1, k, step, sigmas)
+        graph.update()
+    T = pose([0.3, -0.2, 0.5], [0.4, 0.1, 1.0])  # far enough that rotation and translation mix
+    expected = graph.covariance_through(2, T, sigmas / 2)
+    assert 3 not in graph
+    graph.add_pose(3, graph.pose(2) @ T)
+    graph.add_between(2, 3, T, sigmas / 2)
+    graph.update()
+    assert 3 in graph
+    np.testing.assert_allclose(expected, graph.covariance(3), rtol=1e-6, atol=1e-12)
+    assert not np.allclose(expected, graph.covariance(2) + np.diag((sigmas / 2) ** 2))  # the turn matters
+
+
 def test_a_windowed_graph_marginalises_old_poses_and_keeps_their_estimates(rng):
     poses = [np.eye(4)]
     for _ in range(60):

@@ -226,6 +226,24 @@ def test_a_map_that_locates_few_of_the_tracks_does_not_make_every_frame_a_keyfra
     assert not any(r.lost for r in after)
 
 
+def test_the_graph_holds_keyframes_and_frames_measured_two_view_not_frames_located_in_the_map():
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=30))
+    located = 0
+    for pipeline, _, result in run_pipeline(simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle"))):
+        graph = pipeline.odometry.graph
+        in_map = result.relative is not None and result.relative.model == "pnp"
+        assert (result.index in graph) == (result.keyframe or not in_map), result.index
+        if in_map and not result.keyframe:
+            located += 1
+            np.testing.assert_allclose(result.T_world_cam, graph.pose(result.reference) @ result.T_ref_cur)
+            assert np.all(np.linalg.eigvalsh(result.covariance) > 0)
+            assert np.all(np.diag(result.covariance) > np.diag(graph.covariance(result.reference)))
+    assert located >= 15
+    trajectory = pipeline.trajectory()
+    assert trajectory.shape == (30, 4, 4)
+    np.testing.assert_allclose(trajectory[-1], pipeline.odometry.estimate(29))
+
+
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():
     scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=30))
     frames = list(simulated_frames(scenario))
