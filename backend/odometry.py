@@ -292,10 +292,8 @@ class Odometry:
         rel, T, pairs, measured_points = self._pose(kf, k)
         measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
-        T, measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
-        if rel.model != "pnp":  # a frame located in the map joins the graph only as a keyframe
-            self._add_measurement(measurement)
-        decision = self._update_keyframes(measurement, len(pairs))
+        measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
+        decision, T = self._update_keyframes(measurement, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
@@ -374,12 +372,10 @@ class Odometry:
             return 0, None
         return len(self.map.landmarks), self.map.points()[1] if changed and self.map.started else None
 
-    def _measurement(
-        self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float
-    ) -> tuple[np.ndarray, Measurement]:
+    def _measurement(self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float) -> Measurement:
         """Frame k's measured pose ``T`` (4, 4) from keyframe kf, with ``parallax`` (px), as the graph would take
         it; where no pose could be measured, no motion since frame k - 1, very uncertain, so that the graph stays
-        connected. Returns that pose and the measurement; frame k's estimate is the keyframe's composed with it."""
+        connected. Until it joins the graph, frame k's estimate is the keyframe's composed with it."""
         if rel.ok:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
@@ -390,7 +386,7 @@ class Odometry:
             sigmas = np.array([0.5] * 3 + [1.0] * 3)
         measurement = Measurement(kf, k, rel, T, sigmas)
         self.measured[k] = measurement
-        return T, measurement
+        return measurement
 
     def _add_measurement(self, measurement: Measurement) -> None:
         """Add a measured frame to the graph, linked to its keyframe (and to the keyframe before where they share
@@ -419,17 +415,20 @@ class Odometry:
             return self.graph.covariance(index)
         return self.graph.covariance_through(measurement.keyframe, measurement.T, measurement.sigmas)
 
-    def _update_keyframes(self, measurement: Measurement, confirmed: int) -> Decision:
+    def _update_keyframes(self, measurement: Measurement, confirmed: int) -> tuple[Decision, np.ndarray]:
         """Frame k, measured from keyframe kf with ``confirmed`` pairs, through the keyframe decision
-        (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``). A new
-        keyframe joins the graph, moves the plane's distance on, joins the map that located it, and where it was
-        lost starts the map again."""
+        (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``), and a frame that
+        starts one is measured by the map's adjustment. Frames measured two-view join the graph, those located in
+        the map only as keyframes. A new keyframe moves the plane's distance on, joins the map that located it,
+        and where it was lost starts the map again. Returns the decision and frame k's pose from keyframe kf."""
         current, k, kf, rel, T = self.keyframe, measurement.index, measurement.keyframe, measurement.rel, measurement.T
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
         started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
+        if started:
+            measurement = self.measured[k] = replace(measurement, **self._adjusted())
         decision = self.policy.decide(self._evidence(k, kf, confirmed, started))
-        joins = decision.keyframe and k in self.measured  # located in the map: it joins the graph now
-        if joins:
+        located = rel.model == "pnp"
+        if decision.keyframe or not located:
             self._add_measurement(measurement)
         if decision.restart:
             self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
@@ -440,12 +439,12 @@ class Odometry:
             if rel.ok and not started and self._map_holds(kf):
                 self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
                 self._add_adjusted(k)
-        if joins:
+        if decision.keyframe and located:
             self.graph.refine(KEYFRAME_UPDATES)
         if self.map is not None and self.keyframe == k and not rel.ok:
             self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
         self.first_baseline &= not self._map_holds(self.keyframe) and k < self.config.map.start_within
-        return decision
+        return decision, measurement.T
 
     def _evidence(self, k: int, kf: int, confirmed: int, started: bool) -> KeyframeEvidence:
         """What frame k, measured from keyframe kf, showed against the current keyframe."""
@@ -477,7 +476,6 @@ class Odometry:
             baseline = self._first_baseline(kf, k, candidate)
             if self.map.start(self._keyframe(kf, origin), self._keyframe(k, origin @ baseline)):
                 self.first_map = False
-                self._add_adjusted(k)
                 return True
         return False
 
@@ -506,17 +504,25 @@ class Odometry:
         known = self.step_lengths(kf, k) if self.first_map and self.step_lengths is not None else None
         return T if known is None else with_length(T, known)
 
-    def _add_adjusted(self, k: int) -> None:
-        """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe
-        before it in the map, ``BUNDLE_GAIN`` times surer than a measurement from as many landmarks, unless it
-        contradicts the graph (``ADJUSTED_AGREEMENT``: a window that adjusted itself away from its measurements)."""
+    def _adjusted(self) -> dict:
+        """The map's newest keyframe seen from the one before it after the bundle adjustment: ``keyframe`` (the one
+        before), ``T`` (4, 4) and ``sigmas`` (6,), ``BUNDLE_GAIN`` times surer than a measurement from as many
+        landmarks."""
         before, keyframe = self.map.keyframes[-2:]
         T = np.linalg.inv(before.T_world_cam) @ keyframe.T_world_cam
         seen = int(self.map.known(keyframe.ids).sum())
         sigmas = measurement_sigmas(seen, 1.0, float(np.linalg.norm(T[:3, 3]))) / BUNDLE_GAIN
-        if self.graph.in_window(before.index) and self._agrees(before.index, k, T):
-            self.graph.add_between(before.index, k, T, sigmas)
-            self.graph.update(keep=[before.index, k])
+        return {"keyframe": before.index, "T": T, "sigmas": sigmas}
+
+    def _add_adjusted(self, k: int) -> None:
+        """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe
+        before it in the map (``_adjusted``), unless it contradicts the graph (``ADJUSTED_AGREEMENT``: a window
+        that adjusted itself away from its measurements)."""
+        adjusted = self._adjusted()
+        before, T, sigmas = adjusted["keyframe"], adjusted["T"], adjusted["sigmas"]
+        if self.graph.in_window(before) and self._agrees(before, k, T):
+            self.graph.add_between(before, k, T, sigmas)
+            self.graph.update(keep=[before, k])
 
     def _agrees(self, i: int, j: int, T: np.ndarray) -> bool:
         """Whether ``T`` (4, 4), frame j seen from frame i, lies within ``ADJUSTED_AGREEMENT`` of the graph's."""

@@ -244,6 +244,27 @@ def test_the_graph_holds_keyframes_and_frames_measured_two_view_not_frames_locat
     np.testing.assert_allclose(trajectory[-1], pipeline.odometry.estimate(29))
 
 
+def test_the_frame_that_starts_the_map_enters_the_graph_as_the_map_has_it():
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=20))
+    run = run_pipeline(simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle")))
+    truth = {}
+    for pipeline, frame, result in run:
+        truth[result.index] = frame.T_world_cam
+        if result.keyframe_reason == "a map starts":
+            odometry = pipeline.odometry
+            break
+    else:
+        pytest.fail("no map started")
+    first, second = odometry.map.keyframes
+    assert (first.index, second.index) == (result.reference, result.index)
+    in_map = np.linalg.inv(first.T_world_cam) @ second.T_world_cam
+    np.testing.assert_allclose(result.T_ref_cur, in_map)
+    graph = odometry.graph
+    np.testing.assert_allclose(np.linalg.inv(graph.pose(first.index)) @ graph.pose(second.index), in_map, atol=1e-6)
+    true_length = np.linalg.norm(truth[second.index][:3, 3] - truth[first.index][:3, 3])
+    assert np.linalg.norm(result.T_ref_cur[:3, 3]) == pytest.approx(true_length, rel=1e-3)
+
+
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():
     scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=30))
     frames = list(simulated_frames(scenario))
