@@ -498,14 +498,21 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 def _configure_logging(args: argparse.Namespace) -> None:
     """Notes to standard error at the level -q / -v ask for; Python warnings (a damaged log, say) as one
-    line each."""
+    line each, each said once however often the command meets it (a log read twice)."""
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(message)s"))
     log.handlers[:] = [handler]
     log.setLevel(level)
     log.propagate = False
-    warnings.showwarning = lambda message, category, *_, **__: log.warning(f"deepslam: warning: {message}")
+    said: set[str] = set()
+
+    def show(message, category, *_, **__) -> None:
+        if str(message) not in said:
+            said.add(str(message))
+            log.warning(f"deepslam: warning: {message}")
+
+    warnings.showwarning = show
 
 
 class Terminated(KeyboardInterrupt):

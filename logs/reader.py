@@ -66,8 +66,13 @@ class Damage:
     complete: bool = True  # the file reached its data end
 
     def report(self, path: Path, frames: int) -> str:
-        lost = f"; {self.dropped_frames} damaged frames dropped" if self.dropped_frames else ""
-        return f"{path}: {'; '.join(self.problems)}; read {frames} whole frames{lost}"
+        lost = f"; {_count(self.dropped_frames, 'damaged frame')} dropped" if self.dropped_frames else ""
+        return f"{path}: {'; '.join(self.problems)}; read {_count(frames, 'whole frame')}{lost}"
+
+
+def _count(number: int, noun: str) -> str:
+    """A count with its noun, plural but for one: "1 frame", "2 frames"."""
+    return f"{number} {noun}{'' if number == 1 else 's'}"
 
 
 @dataclass

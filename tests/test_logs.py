@@ -403,6 +403,58 @@ def test_report_compares_runs_and_says_what_a_log_lacks(oracle_log, tmp_path):
     assert not (tmp_path / "none.html").exists()
 
 
+def test_a_cut_off_log_is_warned_of_once_by_every_command_that_reads_it(oracle_log, tmp_path, capsys):
+    path, _ = oracle_log
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: int(path.stat().st_size * 0.7)])
+    commands = {
+        "replay": ["replay", str(cut), "--frontend", "classical", "--out", str(tmp_path / "replayed.mcap"), "-q"],
+        "report": ["report", str(cut), "--out", str(tmp_path / "report.html")],
+        "drift": ["drift", str(cut), "--out", str(tmp_path / "drift")],
+    }
+    for name, argv in commands.items():
+        assert main(argv) == 0, name
+        warned = [line for line in capsys.readouterr().err.splitlines() if "truncated" in line]
+        assert len(warned) == 1 and "cut.mcap" in warned[0], (name, warned)
+        assert re.search(r"read \d+ whole frames?(;|$)", warned[0]), warned[0]
+
+
+def test_a_loss_counts_its_frames_in_words_that_agree():
+    from deepslam.logs.reader import Damage
+
+    assert Damage(["truncated"], 1).report(Path("a.mcap"), 1) == (
+        "a.mcap: truncated; read 1 whole frame; 1 damaged frame dropped"
+    )
+    assert Damage(["truncated"], 2).report(Path("a.mcap"), 0).endswith("read 0 whole frames; 2 damaged frames dropped")
+
+
+def test_the_report_draws_runs_without_truth_on_their_own_axes_and_legends_outside(oracle_log, monkeypatch):
+    from dataclasses import replace as replaced
+
+    from deepslam.backend.evaluation import report
+
+    path, _ = oracle_log
+    with_truth = report.load_run(path)
+    no_truth = report.Run(
+        Path("replayed.mcap"), [replaced(f, T_groundtruth=None) for f in with_truth.frames], with_truth.metadata
+    )
+    figures = []
+    monkeypatch.setattr(report, "_png", lambda fig: figures.append(fig) or "")
+    report.trajectory_figures([with_truth, no_truth])
+    report.map_figure([with_truth])
+    top, *_, own = figures[0].axes
+    assert len(figures[0].axes) == 4 and "aligned" in top.get_title() and "no truth" in own.get_title()
+    assert [line.get_label() for line in own.get_lines()] == ["replayed estimate"]
+    assert not any("replayed" in line.get_label() for line in top.get_lines())
+    figures[0].canvas.draw()
+    for ax in figures[0].axes + figures[1].axes:  # every legend below its plot, none over the lines
+        legend = ax.get_legend()
+        assert legend is not None and legend.get_window_extent().y1 <= ax.get_window_extent().y0 + 1
+    settings = report._settings(with_truth)
+    assert re.search(r"\nodometry\.map\.window +6\n", settings) and re.search(r"\nscenario\.world +plane\n", settings)
+    assert "max-height" not in report.STYLE
+
+
 def test_an_independent_reader_decodes_every_message(oracle_log):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore

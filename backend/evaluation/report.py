@@ -38,6 +38,7 @@ class Run:
     frames: list[LogFrame]
     metadata: dict
     notes: list[str] = field(default_factory=list)  # what is missing or was lost
+    lost: list[str] = field(default_factory=list)  # what reading the file lost (a cut-off or damaged log)
 
     @property
     def label(self) -> str:
@@ -64,12 +65,12 @@ def load_run(path: Path) -> Run:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         frames = list(read_frames(path))
-    notes = [str(w.message) for w in caught]
+    lost = [str(w.message) for w in caught]
     try:
         metadata = read_metadata(path)
     except LogError as error:
-        metadata, notes = {}, [*notes, str(error)]
-    run = Run(path, frames, metadata, notes)
+        metadata, lost = {}, [*lost, str(error)]
+    run = Run(path, frames, metadata, list(lost), lost)
     if run.poses is None:
         run.notes.append("no ground truth (/groundtruth/pose): drift figures are not available; the estimate is drawn")
     if not any(f.diagnostics for f in frames):
@@ -88,8 +89,9 @@ def _image_tag(png_base64: str, alt: str) -> str:
 
 
 def trajectory_figures(runs: list[Run]) -> str:
-    """Top views of every run's estimate (aligned to its truth, with it, where the log has truth);
-    translation error (after SE(3) alignment) and RPE over time for the runs with truth."""
+    """Top views of the runs' estimates: aligned to their truth and drawn with it where the log has truth, the
+    others as they are on axes of their own (their units need not be metres); translation error (after SE(3)
+    alignment) and RPE over time for the runs with truth. Legends sit below the plots."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -99,8 +101,23 @@ def trajectory_figures(runs: list[Run]) -> str:
     estimates = [(run, run.estimates) for run in runs if run.poses is None and run.estimates is not None]
     if not with_truth and not estimates:
         return "<p>No run has estimated poses: no trajectory plots.</p>"
-    fig, axes = plt.subplots(1, 3 if with_truth else 1, figsize=(15 if with_truth else 5.5, 4.2), squeeze=False)
-    axes = axes[0]
+    panels = 3 * bool(with_truth) + bool(estimates)
+    fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 5.2), squeeze=False)
+    axes = list(axes[0])
+    if with_truth:
+        _truth_panels(axes[:3], with_truth)
+    if estimates:
+        _own_units_panel(axes[-1], estimates)
+    for ax in axes:
+        _legend_below(ax)
+    fig.tight_layout()
+    tag = _image_tag(_png(fig), "trajectories")
+    plt.close(fig)
+    return tag
+
+
+def _truth_panels(axes: list, with_truth: list[tuple[Run, tuple]]) -> None:
+    """Top view (aligned, SE(3)), translation error and RPE over time of runs with truth, on three ``axes``."""
     for run, (seconds, truth, estimate) in with_truth:
         shown = np.sort(np.argsort(truth[:, :3, 3].std(0))[1:])  # the two axes with the most motion
         aligned = drift.align(estimate, truth, with_scale=False)
@@ -109,20 +126,25 @@ def trajectory_figures(runs: list[Run]) -> str:
                      label=f"{run.label} truth")  # fmt: skip
         axes[1].plot(seconds, np.linalg.norm(aligned[:, :3, 3] - truth[:, :3, 3], axis=1), label=run.label)
         axes[2].plot(seconds[1:], drift.rpe(estimate, truth)[0], label=run.label)
-    for run, estimate in estimates:  # no truth: the estimate as it is, in the run's own units
-        shown = np.sort(np.argsort(estimate[:, :3, 3].std(0))[1:])
-        axes[0].plot(estimate[:, shown[0], 3], estimate[:, shown[1], 3], label=f"{run.label} estimate (no truth)")
-    axes[0].set(title="top view (aligned to the truth, SE(3), where there is one)", xlabel="m", ylabel="m")
+    axes[0].set(title="top view, aligned to the truth (SE(3))", xlabel="m", ylabel="m")
     axes[0].axis("equal")
-    if with_truth:
-        axes[1].set(title="translation error over time (ATE)", xlabel="time (s)", ylabel="m")
-        axes[2].set(title="RPE over time (1 frame)", xlabel="time (s)", ylabel="m")
-    for ax in axes:
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    tag = _image_tag(_png(fig), "trajectories")
-    plt.close(fig)
-    return tag
+    axes[1].set(title="translation error over time (ATE)", xlabel="time (s)", ylabel="m")
+    axes[2].set(title="RPE over time (1 frame)", xlabel="time (s)", ylabel="m")
+
+
+def _own_units_panel(ax, estimates: list[tuple[Run, np.ndarray]]) -> None:
+    """Top view of runs without truth, each estimate as it is, in the run's own units."""
+    for run, estimate in estimates:
+        shown = np.sort(np.argsort(estimate[:, :3, 3].std(0))[1:])
+        ax.plot(estimate[:, shown[0], 3], estimate[:, shown[1], 3], label=f"{run.label} estimate")
+    ax.set(title="top view, no truth (the runs' own units)", xlabel="run units", ylabel="run units")
+    ax.axis("equal")
+
+
+def _legend_below(ax) -> None:
+    """The legend of ``ax`` under it, outside the plot (none for an axes without labelled lines)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
 
 
 def tracking_figure(runs: list[Run]) -> str:
@@ -145,7 +167,7 @@ def tracking_figure(runs: list[Run]) -> str:
             ax.plot(keyframes, np.zeros(len(keyframes)), "k|", markersize=12, label="keyframes")
             ax.plot(lost, np.zeros(len(lost)), "rx", markersize=8, label=f"lost ({len(lost)})")
         ax.set(title=run.label, xlabel="frame")
-        ax.legend(fontsize=7)
+        _legend_below(ax)
     axes[0][0].set_ylabel("points")
     fig.tight_layout()
     tag = _image_tag(_png(fig), "tracks and inliers")
@@ -177,8 +199,11 @@ def map_figure(runs: list[Run]) -> str:
         axes[0][1].plot(seconds[SCALE_WINDOW:], ratio, label=run.label)
     axes[0][0].set(title="map size", xlabel="frame", ylabel="landmarks")
     axes[0][1].set(title=f"scale over time ({SCALE_WINDOW} frames)", xlabel="time (s)", ylabel="estimated / true")
-    for ax in axes[0]:
-        ax.legend(fontsize=7)
+    missing = ("no run has a map", f"no run has truth over {SCALE_WINDOW + 1} frames")
+    for ax, drawn, said in zip(axes[0], (mapped, scaled), missing, strict=True):
+        if not drawn:
+            ax.text(0.5, 0.5, said, ha="center", va="center", transform=ax.transAxes)
+        _legend_below(ax)
     fig.tight_layout()
     tag = _image_tag(_png(fig), "map size and scale")
     plt.close(fig)
@@ -229,23 +254,41 @@ def _drift_table(runs: list[Run]) -> str:
     return "<table><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr>" + "".join(rows) + "</table>"
 
 
+SETTINGS = ("version", "replayed_from", "frontend", "scenario", "tracker", "odometry")  # the metadata shown, in order
+
+
 def _settings(run: Run) -> str:
-    shown = {
-        k: v for k, v in run.metadata.items() if k in ("scenario", "tracker", "odometry", "version", "replayed_from")
-    }
-    return f"<pre>{html.escape(json.dumps(shown, indent=1))}</pre>"
+    """The run's settings, a line each: dotted name (``odometry.map.window``) and value, every one shown."""
+    leaves = [leaf for key in SETTINGS if key in run.metadata for leaf in _flat(key, run.metadata[key])]
+    if not leaves:
+        return "<p>No settings in the log.</p>"
+    width = max(len(name) for name, _ in leaves)
+    lines = [f"{name:<{width}}  {_shown(value)}" for name, value in leaves]
+    return f"<pre class='settings'>{html.escape(chr(10).join(lines))}</pre>"
+
+
+def _shown(value) -> str:
+    """A setting's value as text: a string as it is, anything else as JSON."""
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def _flat(name: str, value) -> list[tuple[str, object]]:
+    """(dotted name, value) of every leaf of a nested dict."""
+    if not isinstance(value, dict):
+        return [(name, value)]
+    return [leaf for key, inner in value.items() for leaf in _flat(f"{name}.{key}", inner)]
 
 
 STYLE = """body{font-family:sans-serif;margin:1.5em;color:#222}table{border-collapse:collapse;margin:1em 0}
 td,th{border:1px solid #bbb;padding:.3em .7em;text-align:right}th{background:#eee}
 img{max-width:100%;display:block;margin:.5em 0}.note{color:#a33}.runs{display:flex;gap:1.5em;flex-wrap:wrap}
-.run{flex:1;min-width:30em}pre{background:#f6f6f6;padding:.6em;font-size:.8em;max-height:18em;overflow:auto}"""
+.run{flex:1;min-width:30em}pre{background:#f6f6f6;padding:.6em;font-size:.8em;white-space:pre-wrap}"""
 
 
 def write_report(paths: list[Path], out: Path) -> list[str]:
     """Write the HTML report of the logs ``paths`` to ``out`` (never over one of them; by way of
-    ``out.partial``); returns one line per log that could not be read at all (the page says so too).
-    LogError if none could."""
+    ``out.partial``); returns one line per log that could not be read at all and per loss in the logs read (a
+    cut-off file), each once (the page says so too). LogError if none could."""
     runs, unreadable = [], []
     for path in paths:
         try:
@@ -272,4 +315,4 @@ def write_report(paths: list[Path], out: Path) -> list[str]:
     )
     with written(out, inputs=tuple(paths)) as partial:
         partial.write_text(page)
-    return unreadable
+    return list(dict.fromkeys([*unreadable, *(line for run in runs for line in run.lost)]))
