@@ -173,12 +173,12 @@ def _bench(args: argparse.Namespace) -> None:
     _save(bench.bench_detector(args.repeats) if args.target == "detector" else bench.bench_warp(args.repeats), args.out)
 
 
-def _print_summary(summary: dict, scale: str) -> None:
-    """A run's figures: what needs no truth, then the drift where there was truth."""
+def _print_summary(summary: dict, scale: str, command: str = "run") -> None:
+    """The figures of a ``command`` (run or replay): what needs no truth, then the drift where there was truth."""
     meaning = {"map": " = a local map's, its first baseline from the truth where there is any, else 1",
                "gt": " = ground-truth step lengths", "plane": " = known distance to the dominant plane",
                "none": ": up to scale, drift after Sim(3) alignment only"}[scale]  # fmt: skip
-    print(f"run (scale: {scale}{meaning})")
+    print(f"{command} (scale: {scale}{meaning})")
     for key, value in summary.items():
         print(f"  {key:<20} {value:.4f}" if isinstance(value, float) else f"  {key:<20} {value}")
     if "ate_sim3" in summary:
@@ -221,7 +221,7 @@ def _replay(args: argparse.Namespace) -> None:
     if args.scale == "plane" and args.plane_distance is None:
         raise _UsageError("--scale plane needs --plane-distance M, the first camera's distance to the dominant plane")
     result = replay(args.input, *configs, args.out, {"version": _version()}, source_options=sources)
-    _print_summary(result["summary"], result["scale"])
+    _print_summary(result["summary"], result["scale"], "replay")
     log.info(f"wrote {args.out}")
 
 
