@@ -173,8 +173,8 @@ class PoseGraph:
         """Every pose's latest estimate (N, 4, 4), in key order."""
         if self.config.window is None:
             estimate = self.solver.calculateEstimate()
-            return np.stack([estimate.atPose3(k).matrix() for k in range(self.count)])
-        return np.stack([self._estimates[k] for k in range(self.count)])
+            return np.stack([estimate.atPose3(k).matrix() for k in sorted(self._estimates)])
+        return np.stack([self._estimates[k] for k in sorted(self._estimates)])
 
     def __contains__(self, key: int) -> bool:
         """Whether the graph has a pose ``key`` (in the window or marginalised)."""

@@ -59,12 +59,11 @@ StepLengths = Callable[[int, int], float | None]
 
 @dataclass(frozen=True)
 class Measurement:
-    """Frame ``index``'s pose ``T`` (4, 4) seen from keyframe ``keyframe`` (``T_kf_frame``, metric), as measured
-    (``rel``), with the sigmas (6,) the graph takes it with (rotation (rad) first, then translation (m))."""
+    """Frame ``index``'s pose ``T`` (4, 4) seen from keyframe ``keyframe`` (``T_kf_frame``, metric), with the
+    sigmas (6,) the graph takes it with (rotation (rad) first, then translation (m))."""
 
     keyframe: int
     index: int
-    rel: relpose.RelativePose
     T: np.ndarray
     sigmas: np.ndarray
 
@@ -293,7 +292,7 @@ class Odometry:
         measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
         measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
-        decision, T = self._update_keyframes(measurement, len(pairs))
+        decision, T = self._update_keyframes(measurement, rel, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
@@ -384,7 +383,7 @@ class Odometry:
         else:
             T = np.linalg.inv(self.graph.pose(kf)) @ self.estimate(k - 1)
             sigmas = np.array([0.5] * 3 + [1.0] * 3)
-        measurement = Measurement(kf, k, rel, T, sigmas)
+        measurement = Measurement(kf, k, T, sigmas)
         self.measured[k] = measurement
         return measurement
 
@@ -415,17 +414,20 @@ class Odometry:
             return self.graph.covariance(index)
         return self.graph.covariance_through(measurement.keyframe, measurement.T, measurement.sigmas)
 
-    def _update_keyframes(self, measurement: Measurement, confirmed: int) -> tuple[Decision, np.ndarray]:
-        """Frame k, measured from keyframe kf with ``confirmed`` pairs, through the keyframe decision
+    def _update_keyframes(
+        self, measurement: Measurement, rel: relpose.RelativePose, confirmed: int
+    ) -> tuple[Decision, np.ndarray]:
+        """Frame k, measured from keyframe kf (``rel``) with ``confirmed`` pairs, through the keyframe decision
         (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``), and a frame that
         starts one is measured by the map's adjustment. Frames measured two-view join the graph, those located in
         the map only as keyframes. A new keyframe moves the plane's distance on, joins the map that located it,
         and where it was lost starts the map again. Returns the decision and frame k's pose from keyframe kf."""
-        current, k, kf, rel, T = self.keyframe, measurement.index, measurement.keyframe, measurement.rel, measurement.T
+        current, k, kf, T = self.keyframe, measurement.index, measurement.keyframe, measurement.T
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
         started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
         if started:
-            measurement = self.measured[k] = replace(measurement, **self._adjusted())
+            before, T_adjusted, sigmas = self._adjusted()
+            measurement = self.measured[k] = replace(measurement, keyframe=before, T=T_adjusted, sigmas=sigmas)
         decision = self.policy.decide(self._evidence(k, kf, confirmed, started))
         located = rel.model == "pnp"
         if decision.keyframe or not located:
@@ -504,22 +506,21 @@ class Odometry:
         known = self.step_lengths(kf, k) if self.first_map and self.step_lengths is not None else None
         return T if known is None else with_length(T, known)
 
-    def _adjusted(self) -> dict:
-        """The map's newest keyframe seen from the one before it after the bundle adjustment: ``keyframe`` (the one
-        before), ``T`` (4, 4) and ``sigmas`` (6,), ``BUNDLE_GAIN`` times surer than a measurement from as many
+    def _adjusted(self) -> tuple[int, np.ndarray, np.ndarray]:
+        """The map's newest keyframe seen from the one before it after the bundle adjustment: the index of the one
+        before, the pose (4, 4) and its sigmas (6,), ``BUNDLE_GAIN`` times surer than a measurement from as many
         landmarks."""
         before, keyframe = self.map.keyframes[-2:]
         T = np.linalg.inv(before.T_world_cam) @ keyframe.T_world_cam
         seen = int(self.map.known(keyframe.ids).sum())
         sigmas = measurement_sigmas(seen, 1.0, float(np.linalg.norm(T[:3, 3]))) / BUNDLE_GAIN
-        return {"keyframe": before.index, "T": T, "sigmas": sigmas}
+        return before.index, T, sigmas
 
     def _add_adjusted(self, k: int) -> None:
         """Keyframe k's pose after the map's bundle adjustment into the graph: a between factor from the keyframe
         before it in the map (``_adjusted``), unless it contradicts the graph (``ADJUSTED_AGREEMENT``: a window
         that adjusted itself away from its measurements)."""
-        adjusted = self._adjusted()
-        before, T, sigmas = adjusted["keyframe"], adjusted["T"], adjusted["sigmas"]
+        before, T, sigmas = self._adjusted()
         if self.graph.in_window(before) and self._agrees(before, k, T):
             self.graph.add_between(before, k, T, sigmas)
             self.graph.update(keep=[before, k])

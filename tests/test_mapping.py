@@ -242,6 +242,8 @@ def test_the_graph_holds_keyframes_and_frames_measured_two_view_not_frames_locat
     trajectory = pipeline.trajectory()
     assert trajectory.shape == (30, 4, 4)
     np.testing.assert_allclose(trajectory[-1], pipeline.odometry.estimate(29))
+    held = pipeline.odometry.graph.poses()  # the graph's own poses, in key order, with keys left out
+    assert len(held) == 30 - located and np.allclose(held[0], trajectory[0])
 
 
 def test_the_frame_that_starts_the_map_enters_the_graph_as_the_map_has_it():
