@@ -191,6 +191,11 @@ def test_parallel_evaluations_give_the_serial_bytes(tmp_path, capsys):
         assert main([*argv, "--out", str(tmp_path / "serial")]) == 0
         assert main([*argv, "--out", str(tmp_path / "jobs"), "--jobs", "2"]) == 0
         assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "jobs" / name).read_bytes(), name
+    at = sweep.index("--seeds")
+    on = [*sweep[:at], "--seeds", "2", "--first-seed", "1", *sweep[at + 2 :], "--out", str(tmp_path / "on")]
+    assert main(on) == 0
+    serial, later = (json.loads((tmp_path / f / "pipeline.json").read_text())["rows"] for f in ("serial", "on"))
+    assert [row["runs"] for row in later] == [row["runs"][1:] for row in serial]  # seeds 1 and 2, as before
     with pytest.raises(SystemExit) as exit_info:
         main([*sweep, "--jobs", "0"])
     assert exit_info.value.code == 2 and "argument --jobs: must lie in [1, 256]" in capsys.readouterr().err

@@ -44,6 +44,15 @@ class SweepConfig:
             "max": 1000,
         },
     )
+    first_seed: int = field(
+        default=0,
+        metadata={
+            "help": "the first seed: the runs use seeds first-seed .. first-seed + seeds - 1 (to check a change "
+            "on worlds an earlier sweep did not see)",
+            "min": 0,
+            "max": 1_000_000,
+        },
+    )
     scale: Scale = field(
         default="gt",
         metadata={

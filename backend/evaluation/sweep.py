@@ -68,7 +68,7 @@ def pipeline_matrix(
 ) -> Sweep:
     """One row per (world, trajectory, noise, lighting, front-end): the median ATE SE3 over seeds on
     photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
-    cells, seeds = config.cells(), range(config.seeds)
+    cells, seeds = config.cells(), range(config.first_seed, config.first_seed + config.seeds)
     if not cells:
         raise InputError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
     pieces = [(cell, seed, config, tracker_config) for cell in cells for seed in seeds]
