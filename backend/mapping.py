@@ -20,7 +20,7 @@ dropped with the keyframes that leave it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import gtsam
@@ -239,20 +239,20 @@ class LocalMap:
                     seen.setdefault(int(track), []).append((position, pixel))
         return seen
 
-    def adjust(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
-        """Bundle adjustment of the window (the oldest keyframe fixed, its distance to the next kept), then drop
-        observations that do not fit (``_drop_outliers``). Returns the graph and its solution (None where there
-        was nothing to adjust)."""
+    def adjust(self, ranged: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
+        """Bundle adjustment of the window (the oldest keyframe fixed, the distance to it of the keyframe at window
+        position ``ranged`` kept: by default the next), then drop observations that do not fit
+        (``_drop_outliers``). Returns the graph and its solution (None where there was nothing to adjust)."""
         seen = {track: views for track, views in self._observations().items() if len(views) >= 2}
         if len(self.keyframes) < 2 or not seen:
             return None
         graph, values, noise = gtsam.NonlinearFactorGraph(), gtsam.Values(), pixel_noise(self.config.huber_px)
         for position, keyframe in enumerate(self.keyframes):
             values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
-        first, second = (gtsam.symbol("x", position) for position in (0, 1))
+        first, second = (gtsam.symbol("x", position) for position in (0, ranged))
         held = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
         graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), held))
-        distance = np.linalg.norm(self.keyframes[1].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
+        distance = np.linalg.norm(self.keyframes[ranged].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
         graph.add(
             gtsam.RangeFactorPose3(
                 first, second, float(distance), gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * distance + 1e-9)
@@ -323,6 +323,22 @@ class LocalMap:
         """Drop the landmarks no keyframe of the window observes."""
         observed = set(np.concatenate([k.ids for k in self.keyframes]).tolist())
         self.landmarks = {track: point for track, point in self.landmarks.items() if track in observed}
+
+
+def adjust_views(views: list[Keyframe], config: MapConfig, min_px: float) -> np.ndarray | None:
+    """The pose ``T_world_cam`` (4, 4) of the last of ``views`` after one bundle adjustment of them all (copies:
+    the views stay as they are) with the landmarks their tracks triangulate from rays ``min_px`` apart (each from
+    the first view that saw it): the first view held, the last one's distance from it kept (gauge and scale).
+    None where they triangulate fewer than ``config.min_located`` landmarks."""
+    trial = LocalMap(replace(config, window=len(views), fixed_keyframes=0))
+    views = [replace(view) for view in views]
+    trial.keyframes = views[:1]
+    for view in views[1:]:
+        trial._triangulate(view, min_px)
+        trial.keyframes.append(view)
+    if len(trial.landmarks) < config.min_located or trial.adjust(ranged=len(views) - 1) is None:
+        return None
+    return views[-1].T_world_cam
 
 
 def _direction_sigma_deg(

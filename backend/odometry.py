@@ -24,6 +24,8 @@ The pose graph holds the keyframes and the frames measured two-view; a frame loc
 a keyframe, and until then its estimate is its keyframe's composed with its measurement (``Odometry.estimate``).
 Two-view poses before the first map take their lengths from that same source for at most ``map.start_within``
 frames; later, and where PnP finds no pose or no map holds the keyframe, in proportion to their track motion.
+While a map waits to start from the keyframe, a frame's two-view pose is adjusted together with the frames since
+the keyframe (``_initialising``): measured one by one over a few pixels of parallax, their directions scatter.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from deepslam.backend import relpose
 from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.backend.keyframes import Decision, KeyframeEvidence, KeyframePolicy, MapLocation, Phase
-from deepslam.backend.mapping import Keyframe, LocalMap, project
+from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
 from deepslam.geometry import in_image, rotation_angle, vector_angle
@@ -51,6 +53,9 @@ ADJUSTED_AGREEMENT = (3.0, 0.5)  # ... if within this many degrees and this shar
 # the frames located in the map between keyframes, which the graph does not hold, no longer update it
 KEYFRAME_UPDATES = 3
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
+# a frame measured two-view while a map waits is adjusted with at most this many frames since the keyframe ...
+INITIAL_VIEWS = 20
+INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length)
 
 
 StepLengths = Callable[[int, int], float | None]
@@ -124,6 +129,12 @@ def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
     return np.stack([ia, ib], 1).astype(np.int64)
 
 
+def _motion_px(a: Keyframe, b: Keyframe) -> float:
+    """Median motion (px) of the tracks views a and b share; 0 where they share none."""
+    _, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
+    return float(np.median(np.linalg.norm(b.points[ib] - a.points[ia], axis=1))) if len(ia) else 0.0
+
+
 def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float]:
     """Degrees between the pose ``rel`` measures (T_c1_c2, (4, 4)) and ``previous``, the estimate (4, 4) of the
     frame before seen from the same camera 1 (consecutive frames barely move): rotation, then translation
@@ -182,6 +193,7 @@ class Odometry:
         self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
         self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
+        self.waiting: dict[int, Keyframe] = {}  # the frames since the keyframe a map waits to start from, by index
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -289,11 +301,13 @@ class Odometry:
         checkpoint()  # Ctrl-C and SIGTERM take effect between the stages of a frame
         kf = self._reference(k, tracks)
         rel, T, pairs, measured_points = self._pose(kf, k)
+        T = self._initialising(kf, k, rel, T, (pairs, measured_points))
         measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
         measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
         decision, T = self._update_keyframes(measurement, rel, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
+        self.waiting = {i: view for i, view in self.waiting.items() if i > self.keyframe and self._map_waits()}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
         pose = self.estimate(k)
@@ -327,6 +341,35 @@ class Odometry:
             0, tracks, None, self.origin, None, no_pairs, None, 0, timings, keyframe=True,
             phase=Phase.INITIALISING, keyframe_reason="the first frame",
         )  # fmt: skip
+
+    def _map_waits(self) -> bool:
+        """Whether a map waits to start from the current keyframe (``scale="map"``, none holds it)."""
+        return self.map is not None and not self._map_holds(self.keyframe)
+
+    def _initialising(
+        self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: tuple[np.ndarray, np.ndarray]
+    ) -> np.ndarray:
+        """Frame k's pose from keyframe kf (4, 4) while a map waits to start from kf: its two-view pose ``T``
+        adjusted together with up to ``INITIAL_VIEWS`` frames since kf whose tracks moved ``min_parallax`` px from
+        it (``mapping.adjust_views``: kf held, frame k's distance from it kept), each with the pairs the front-end
+        confirmed with kf (``confirmed``: pairs (K, 2) and frame k's points (K, 2) of them). Frames measured one
+        by one from a keyframe a few pixels away point their translations degrees apart (a homography here, an
+        essential matrix there); together they agree. ``T`` where there is no map to wait for, the pose
+        is not a translation measured two-view, or the frames triangulate too few landmarks."""
+        two_view = rel.model in ("homography", "essential") and not rel.rotation_only
+        if kf != self.keyframe or not self._map_waits() or not two_view:
+            return T
+        origin, (pairs, points) = self.graph.pose(kf), confirmed
+        first = self._keyframe(kf, origin)
+        self.waiting[k] = Keyframe(k, origin @ T, self.history[k][0].K, self.history[k][1].ids[pairs[:, 1]], points)
+        earlier = [
+            replace(self.waiting[i], T_world_cam=self.estimate(i))
+            for i in sorted(self.waiting)
+            if i < k and _motion_px(first, self.waiting[i]) >= self.config.min_parallax
+        ]
+        views = [first, *earlier[-INITIAL_VIEWS:], self.waiting[k]]
+        adjusted = adjust_views(views, self.config.map, INITIAL_TRIANGULATION_PX)
+        return T if adjusted is None else np.linalg.inv(origin) @ adjusted
 
     def _pose(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Frame k's pose from keyframe kf (what ``_measure`` returns): located in the map where it holds kf, else

@@ -5,15 +5,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from deepslam.backend import drift
 from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
-from deepslam.backend.mapping import Keyframe, LocalMap, project
+from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
 from deepslam.backend.pipeline import Pipeline
 from deepslam.frontend.config import TrackerConfig
 from deepslam.frontend.tracking import OracleTracker, Tracks
+from deepslam.geometry import vector_angle
 from deepslam.sim.camera import intrinsics
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -81,6 +83,34 @@ def test_keyframes_that_left_the_window_hold_its_landmarks_where_they_saw_them(r
         if retired:
             assert all(np.allclose(k.T_world_cam, T) for k, T in zip(copy.retired, held, strict=True))  # held
     assert errors[True] < 0.7 * errors[False], errors  # more views, wider apart: nearer the truth
+
+
+def _forward(z, turn_deg=0.0):
+    """A camera ``z`` m ahead of the origin, turned ``turn_deg`` about its y axis."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("y", turn_deg, degrees=True).as_matrix()
+    T[2, 3] = z
+    return T
+
+
+def test_views_adjusted_together_point_the_way_one_two_view_pose_cannot(rng):
+    # a camera moving ahead 5 cm a frame: the last view's direction 6 deg off (its length right), as one two-view
+    # pose measures it; the views before it, 1 deg off either way, correct it together
+    world = _world(rng, nearest=3.0, farthest=9.0)
+    truth = [_forward(0.05 * i) for i in range(8)]
+    views = [_keyframe(i, T, world, rng) for i, T in enumerate(truth)]
+    for i, view in enumerate(views[1:], start=1):
+        off = Rotation.from_euler("x", (-1.0) ** i if i < 7 else 6.0, degrees=True).as_matrix()
+        view.T_world_cam = truth[i].copy()
+        view.T_world_cam[:3, 3] = off @ truth[i][:3, 3]
+    before = [view.T_world_cam.copy() for view in views]
+    adjusted = adjust_views(views, MapConfig(), min_px=1.0)
+    direction = np.degrees(vector_angle(adjusted[:3, 3], truth[-1][:3, 3]))
+    assert direction < 3.0, direction
+    assert np.linalg.norm(adjusted[:3, 3]) == pytest.approx(0.35, rel=1e-3)  # its distance from the first kept
+    assert all(np.array_equal(view.T_world_cam, T) for view, T in zip(views, before, strict=True))  # copies
+    standing = [views[0], _keyframe(1, truth[0], world, rng)]
+    assert adjust_views(standing, MapConfig(), min_px=1.0) is None  # no baseline: no landmarks
 
 
 def test_the_map_keeps_every_keyframe_that_left_its_window_up_to_its_fixed_keyframes(rng):
@@ -265,6 +295,23 @@ def test_the_frame_that_starts_the_map_enters_the_graph_as_the_map_has_it():
     np.testing.assert_allclose(np.linalg.inv(graph.pose(first.index)) @ graph.pose(second.index), in_map, atol=1e-6)
     true_length = np.linalg.norm(truth[second.index][:3, 3] - truth[first.index][:3, 3])
     assert np.linalg.norm(result.T_ref_cur[:3, 3]) == pytest.approx(true_length, rel=1e-3)
+
+
+def test_frames_before_the_map_are_adjusted_together_not_measured_one_by_one():
+    # forward motion: a frame's two-view pose from the keyframe points its translation degrees off, a different
+    # way each frame; adjusted with the frames before it, its measurement (T_ref_cur) points nearer the truth
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="forward", frames=30))
+    truth, two_view, adjusted = {}, [], []
+    for _, frame, result in run_pipeline(simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle"))):
+        truth[result.index] = frame.T_world_cam
+        two_view_model = result.relative is not None and result.relative.model in ("homography", "essential")
+        if result.phase != "initialising" or result.keyframe or not two_view_model:
+            continue
+        true = (np.linalg.inv(truth[result.reference]) @ truth[result.index])[:3, 3]
+        two_view.append(np.degrees(vector_angle(result.relative.T_c1_c2[:3, 3], true)))
+        adjusted.append(np.degrees(vector_angle(result.T_ref_cur[:3, 3], true)))
+    assert len(adjusted) >= 10
+    assert np.median(adjusted) < 0.5 * np.median(two_view), (np.median(adjusted), np.median(two_view))
 
 
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():
