@@ -264,13 +264,7 @@ class Odometry:
             relpose.estimate, p1, p2, frame_j.K, size=frame_j.shape, previous_t=self.last_translation,
             previous_normal=normal,
         )  # fmt: skip
-        rel, gate = estimate(self.config.method), self.config.max_rotation_jump
-        if gate and rel.ok:
-            previous = np.linalg.inv(self.graph.pose(i)) @ self.estimate(j - 1)  # frame j - 1 seen from frame i
-            if _turn(rel, previous)[0] > gate:  # another model may agree with the motion
-                turns = [(_turn(other, previous), other) for other in map(estimate, FALLBACK_METHODS)]
-                (rotation, translation), closest = min(turns, key=lambda turn: turn[0])
-                rel = closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
+        rel = self._gated(estimate(self.config.method), estimate, i, j)
         if rel.ok and self.config.scale in ("plane", "none") and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
@@ -280,6 +274,22 @@ class Odometry:
         if rel.ok and not rel.rotation_only and rel.model != "static":
             T = with_length(T, self._step_length(i, j, rel))
         return rel, T, pairs, p2
+
+    def _gated(
+        self, rel: relpose.RelativePose, estimate: Callable[[str], relpose.RelativePose], i: int, j: int
+    ) -> relpose.RelativePose:
+        """``rel``, frame j's pose from frame i, unless it turns more than ``max_rotation_jump`` degrees away from
+        the estimate of frame j - 1 (consecutive frames barely move) and one of ``FALLBACK_METHODS`` (``estimate``
+        measures by a method's name) agrees with that estimate: then the one that agrees best."""
+        gate = self.config.max_rotation_jump
+        if not (gate and rel.ok):
+            return rel
+        previous = np.linalg.inv(self.graph.pose(i)) @ self.estimate(j - 1)  # frame j - 1 seen from frame i
+        if _turn(rel, previous)[0] <= gate:
+            return rel
+        turns = [(_turn(other, previous), other) for other in map(estimate, FALLBACK_METHODS)]
+        (rotation, translation), closest = min(turns, key=lambda turn: turn[0])
+        return closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
 
     def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
         """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""
@@ -465,7 +475,7 @@ class Odometry:
         starts one is measured by the map's adjustment. Frames measured two-view join the graph, those located in
         the map only as keyframes. A new keyframe moves the plane's distance on, joins the map that located it,
         and where it was lost starts the map again. Returns the decision and frame k's pose from keyframe kf."""
-        current, k, kf, T = self.keyframe, measurement.index, measurement.keyframe, measurement.T
+        k, kf, T = measurement.index, measurement.keyframe, measurement.T
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
         started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
         if started:
@@ -478,18 +488,25 @@ class Odometry:
         if decision.restart:
             self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
         elif decision.keyframe:
-            if rel.ok and kf == current and not started:
-                self._update_plane_distance(rel, T)
-            self.previous_keyframe, self.keyframe = current, k
-            if rel.ok and not started and self._map_holds(kf):
-                self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
-                self._add_adjusted(k)
+            self._advance(k, kf, rel, T, started)
         if decision.keyframe and located:
             self.graph.refine(KEYFRAME_UPDATES)
         if self.map is not None and self.keyframe == k and not rel.ok:
             self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
         self.first_baseline &= not self._map_holds(self.keyframe) and k < self.config.map.start_within
         return decision, measurement.T
+
+    def _advance(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, started: bool) -> None:
+        """Frame k, measured from keyframe kf as ``T`` (4, 4), becomes the keyframe after the current one: the
+        plane's distance moves on to it where it was measured against the current one, and where a map located it
+        (and it did not just start one), it joins that map, whose adjustment of it then joins the graph."""
+        current = self.keyframe
+        if rel.ok and kf == current and not started:
+            self._update_plane_distance(rel, T)
+        self.previous_keyframe, self.keyframe = current, k
+        if rel.ok and not started and self._map_holds(kf):
+            self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
+            self._add_adjusted(k)
 
     def _evidence(self, k: int, kf: int, confirmed: int, started: bool) -> KeyframeEvidence:
         """What frame k, measured from keyframe kf, showed against the current keyframe."""
