@@ -129,10 +129,12 @@ def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
     return np.stack([ia, ib], 1).astype(np.int64)
 
 
-def _motion_px(a: Keyframe, b: Keyframe) -> float:
-    """Median motion (px) of the tracks views a and b share; 0 where they share none."""
-    _, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
-    return float(np.median(np.linalg.norm(b.points[ib] - a.points[ia], axis=1))) if len(ia) else 0.0
+def _median_motion(a: Tracks | Keyframe, b: Tracks | Keyframe, pairs: np.ndarray) -> float:
+    """Median motion (px) from ``a`` to ``b`` (tracks or map keyframes: ids and points) of the pairs (K, 2) of
+    their indices; 0 for no pairs."""
+    if len(pairs) == 0:
+        return 0.0
+    return float(np.median(np.linalg.norm(b.points[pairs[:, 1]] - a.points[pairs[:, 0]], axis=1)))
 
 
 def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float]:
@@ -193,7 +195,8 @@ class Odometry:
         self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
         self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
-        self.waiting: dict[int, Keyframe] = {}  # the frames since the keyframe a map waits to start from, by index
+        # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px, in order
+        self.waiting: dict[int, Keyframe] = {}
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -317,7 +320,7 @@ class Odometry:
         measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
         decision, T = self._update_keyframes(measurement, rel, len(pairs))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
-        self.waiting = {i: view for i, view in self.waiting.items() if i > self.keyframe and self._map_waits()}
+        self.waiting = {i: view for i, view in self.waiting.items() if i > self.keyframe} if self._map_waits() else {}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
         pose = self.estimate(k)
@@ -371,14 +374,12 @@ class Odometry:
             return T
         origin, (pairs, points) = self.graph.pose(kf), confirmed
         first = self._keyframe(kf, origin)
-        self.waiting[k] = Keyframe(k, origin @ T, self.history[k][0].K, self.history[k][1].ids[pairs[:, 1]], points)
-        earlier = [
-            replace(self.waiting[i], T_world_cam=self.estimate(i))
-            for i in sorted(self.waiting)
-            if i < k and _motion_px(first, self.waiting[i]) >= self.config.min_parallax
-        ]
-        views = [first, *earlier[-INITIAL_VIEWS:], self.waiting[k]]
+        current = Keyframe(k, origin @ T, self.history[k][0].K, self.history[k][1].ids[pairs[:, 1]], points)
+        earlier = [replace(view, T_world_cam=self.estimate(i)) for i, view in self.waiting.items()]
+        views = [first, *earlier[-INITIAL_VIEWS:], current]
         adjusted = adjust_views(views, self.config.map, INITIAL_TRIANGULATION_PX)
+        if _median_motion(first, current, shared_tracks(first, current)) >= self.config.min_parallax:
+            self.waiting[k] = current  # a view for the frames after it
         return T if adjusted is None else np.linalg.inv(origin) @ adjusted
 
     def _pose(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
@@ -594,13 +595,7 @@ class Odometry:
 
     def _parallax(self, i: int, j: int, pairs: np.ndarray) -> float:
         """Median motion (pixels) of the tracks shared by frames i and j."""
-        if len(pairs) == 0:
-            return 0.0
-        return float(
-            np.median(
-                np.linalg.norm(self.history[j][1].points[pairs[:, 1]] - self.history[i][1].points[pairs[:, 0]], axis=1)
-            )
-        )
+        return _median_motion(self.history[i][1], self.history[j][1], pairs)
 
     def _reference(self, k: int, tracks: Tracks) -> int:
         """The keyframe to measure frame k against: the current one, or, without a map that holds it, the one

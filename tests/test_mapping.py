@@ -85,10 +85,9 @@ def test_keyframes_that_left_the_window_hold_its_landmarks_where_they_saw_them(r
     assert errors[True] < 0.7 * errors[False], errors  # more views, wider apart: nearer the truth
 
 
-def _forward(z, turn_deg=0.0):
-    """A camera ``z`` m ahead of the origin, turned ``turn_deg`` about its y axis."""
+def _forward(z):
+    """A camera ``z`` m ahead of the origin."""
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("y", turn_deg, degrees=True).as_matrix()
     T[2, 3] = z
     return T
 
