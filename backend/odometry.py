@@ -23,7 +23,9 @@ where the caller passes ``step_lengths`` (an input with truth), else the unit (a
 The pose graph holds the keyframes and the frames measured two-view; a frame located in the map joins it only as
 a keyframe, and until then its estimate is its keyframe's composed with its measurement (``Odometry.estimate``).
 Two-view poses before the first map take their lengths from that same source for at most ``map.start_within``
-frames; later, and where PnP finds no pose or no map holds the keyframe, in proportion to their track motion.
+frames; once a map has started (where PnP finds no pose or no map holds the keyframe), from the speed of the last
+step the map measured, and a lost frame goes on by that step (constant velocity): the pixels a step moves tracks
+depend on their depth, which has changed since the first baseline.
 While a map waits to start from the keyframe, a frame's two-view pose is adjusted together with the frames since
 the keyframe (``_initialising``): measured one by one over a few pixels of parallax, their directions scatter.
 """
@@ -31,6 +33,7 @@ the keyframe (``_initialising``): measured one by one over a few pixels of paral
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Callable, Iterator
@@ -56,6 +59,7 @@ FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chose
 # a frame measured two-view while a map waits is adjusted with at most this many frames since the keyframe ...
 INITIAL_VIEWS = 20
 INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length)
+MOTION_STEPS = 5  # the camera's speed: the median length of the last this many steps the map measured
 
 
 StepLengths = Callable[[int, int], float | None]
@@ -91,8 +95,8 @@ class FrameResult:
     measured from them (the front-end may have polished the tracked positions: ``Tracker.confirm``).
     A frame that is not a keyframe reports those points in its ``tracks``; a keyframe keeps the positions
     the front-end tracked, as later frames are measured against them. ``lost``: no relative pose could be
-    measured (``relative.reason`` says why), so the estimate is a guess (no motion since the previous
-    frame)."""
+    measured (``relative.reason`` says why), so the estimate is a guess: the previous frame moved on by the last
+    step the map measured, or before any map, no motion since the previous frame."""
 
     index: int
     tracks: Tracks
@@ -197,6 +201,9 @@ class Odometry:
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
         # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px, in order
         self.waiting: dict[int, Keyframe] = {}
+        # the last MOTION_STEPS steps (4, 4) between two consecutive frames located in the map, T_previous_current
+        self.steps: deque[np.ndarray] = deque(maxlen=MOTION_STEPS)
+        self.located_before = False  # the last frame was located in the map
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -207,14 +214,18 @@ class Odometry:
         return float(rel.t_over_d or 0.0) * self.plane_distance
 
     def _two_view_length(self, i: int, j: int) -> float:
-        """With a map, the length of a two-view step between frames i < j, in proportion to the median motion of
-        their shared tracks: until the first map starts (for at most ``map.start_within`` frames) the true length
-        where ``step_lengths`` knows it, which sets the proportion (metres a pixel); without, one unit for
-        ``keyframe_parallax`` pixels."""
+        """With a map, the length of a two-view step between frames i < j. Until the first map starts (for at most
+        ``map.start_within`` frames), the true length where ``step_lengths`` knows it. Once a map has measured a
+        step (``_velocity``), that step's length times the frames between: the pixels a step moves tracks depend on
+        their depth, which has changed since the first baseline. Else in proportion to the median motion of their
+        shared tracks: metres a pixel from the last true length, or one unit for ``keyframe_parallax`` pixels."""
         parallax = self._parallax(i, j, shared_tracks(self.history[i][1], self.history[j][1]))
         known = self.step_lengths(i, j) if self.first_baseline and self.step_lengths is not None else None
         if known is not None and parallax > 0:
             self.length_per_px = known / parallax
+        velocity = self._velocity() if known is None else None
+        if velocity is not None:
+            return float(np.linalg.norm(velocity[:3, 3])) * (j - i)
         return known if known is not None else parallax * self.length_per_px
 
     def _locate(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
@@ -324,6 +335,7 @@ class Odometry:
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
         pose = self.estimate(k)
+        self._measure_velocity(k, rel)
         optimised = time.perf_counter()
         covariance = self._covariance(k) if self.config.covariance else None
         timings = {
@@ -337,6 +349,19 @@ class Odometry:
             k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
             shared, map_points, self._phase(rel), decision.reason,
         )  # fmt: skip
+
+    def _measure_velocity(self, k: int, rel: relpose.RelativePose) -> None:
+        """Keep the step from frame k - 1 to frame k among the map's ``steps`` where both were located in it."""
+        if rel.model == "pnp" and self.located_before:
+            self.steps.append(np.linalg.inv(self.estimate(k - 1)) @ self.estimate(k))
+        self.located_before = rel.model == "pnp"
+
+    def _velocity(self) -> np.ndarray | None:
+        """The camera's step (4, 4) from one frame to the next as the map last measured it: the last of its
+        ``steps``, as long as their median (a single step is a few millimetres off); None before it measured any."""
+        if not self.steps:
+            return None
+        return with_length(self.steps[-1], float(np.median([np.linalg.norm(step[:3, 3]) for step in self.steps])))
 
     def _track(self, image: np.ndarray, K: np.ndarray) -> Tracks:
         """The front-end's tracks in the next frame, told first where the map expects its landmarks."""
@@ -427,15 +452,17 @@ class Odometry:
 
     def _measurement(self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float) -> Measurement:
         """Frame k's measured pose ``T`` (4, 4) from keyframe kf, with ``parallax`` (px), as the graph would take
-        it; where no pose could be measured, no motion since frame k - 1, very uncertain, so that the graph stays
-        connected. Until it joins the graph, frame k's estimate is the keyframe's composed with it."""
+        it; where no pose could be measured, very uncertain, so that the graph stays connected: frame k - 1 moved on
+        by the last step the map measured (``_velocity``), or before any map, no motion since frame k - 1. Until it
+        joins the graph, frame k's estimate is the keyframe's composed with it."""
         if rel.ok:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
             )
             self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
         else:
-            T = np.linalg.inv(self.graph.pose(kf)) @ self.estimate(k - 1)
+            last, velocity = self.estimate(k - 1), self._velocity()
+            T = np.linalg.inv(self.graph.pose(kf)) @ (last if velocity is None else last @ velocity)
             sigmas = np.array([0.5] * 3 + [1.0] * 3)
         measurement = Measurement(kf, k, T, sigmas)
         self.measured[k] = measurement

@@ -313,6 +313,51 @@ def test_frames_before_the_map_are_adjusted_together_not_measured_one_by_one():
     assert np.median(adjusted) < 0.5 * np.median(two_view), (np.median(adjusted), np.median(two_view))
 
 
+@dataclass
+class _Thinned(OracleTracker):
+    """The oracle, keeping only the first ``thin[i]`` tracks of frame i (0: none, as in a blank image)."""
+
+    thin: dict[int, int] = field(default_factory=dict)
+    frames: int = field(default=0, init=False)
+
+    def track(self, image):
+        tracks = super().track(image)
+        keep, self.frames = self.thin.get(self.frames), self.frames + 1
+        if keep is None:
+            return tracks
+        return Tracks(tracks.points[:keep], tracks.ids[:keep], tracks.scores[:keep])
+
+
+def _thinned_run(trajectory: str, thin: dict[int, int]) -> list:
+    """(true pose (4, 4), result) of each frame of a 36-frame oracle run in the clutter world, thinned as ``thin``."""
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory=trajectory, frames=36))
+    truth = GroundTruth()
+    tracker = _Thinned(truth.landmarks, noise_px=0.5, thin=thin)
+    run = run_pipeline(simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle")), tracker, truth=truth)
+    return [(frame.T_world_cam, result) for _, frame, result in run]
+
+
+def test_frames_lost_after_a_map_go_on_at_the_cameras_velocity():
+    run = _thinned_run("circle", {30: 0, 31: 0, 32: 0})  # three blank frames
+    assert run[29][1].phase == "tracking"
+    for (before, _), (true, result) in zip(run[29:32], run[30:33], strict=True):
+        assert result.lost
+        step = np.linalg.norm(true[:3, 3] - before[:3, 3])
+        assert np.linalg.norm(result.T_world_cam[:3, 3] - true[:3, 3]) < 0.5 * step  # standing still: over 1 step
+
+
+def test_a_two_view_step_after_a_map_takes_its_length_from_the_cameras_speed():
+    # forward, a frame of ten tracks (too few for PnP) is measured two-view; the pixels a step moves its tracks
+    # have grown since the first baseline as the camera neared the scene
+    run = _thinned_run("forward", {30: 10})
+    assert run[29][1].relative.model == "pnp"
+    two_view = [result for _, result in run[30:34] if result.relative.model in ("homography", "essential")]
+    assert len(two_view) >= 2
+    for result in two_view:
+        true_length = np.linalg.norm(run[result.index][0][:3, 3] - run[result.reference][0][:3, 3])
+        assert np.linalg.norm(result.T_ref_cur[:3, 3]) == pytest.approx(true_length, rel=0.15), result.index
+
+
 def test_scale_map_without_truth_measures_in_units_of_its_first_baseline():
     scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=30))
     frames = list(simulated_frames(scenario))
