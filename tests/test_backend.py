@@ -8,7 +8,7 @@ from deepslam.backend import drift, relpose
 from deepslam.backend.config import GraphConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.bench import bench_pipeline
 from deepslam.backend.evaluation.runs import run_frames, simulate, simulated_frames
-from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix
+from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipeline_matrix, summary_lines
 from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
 from deepslam.backend.graph import PoseGraph
 from deepslam.backend.pipeline import Pipeline
@@ -393,6 +393,15 @@ def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apa
     lines = sweep.table().splitlines()
     assert lines == matrix_lines(rows)
     assert "3 grass" in lines[4] and any(line.split()[-5:] == [f"{r['ate_se3']:.4f}" for r in runs] for line in lines)
+    summary = lines[-2:]  # a line per front-end, noise and lighting, over all cells and seeds
+    assert lines[-4:-2] == summary_lines(rows)[:2] and summary == summary_lines(rows)[2:]
+    clean = summary[0].split()
+    share = [100 * r["ate_se3"] / r["path_length"] for r in runs if not r["corner_poor"]]
+    assert clean[:4] == ["oracle", "0.00", "0.00", "4"]
+    assert float(clean[4]) == pytest.approx(np.median(share), abs=0.005)
+    assert float(clean[5]) == pytest.approx(np.mean(share), abs=0.005)
+    assert float(clean[6]) == pytest.approx(rows[0]["median_ate_over_limit"], abs=0.005)
+    assert int(clean[-1]) == sum(r["lost_frames"] for r in runs)
     written = sweep.save(tmp_path)
     assert [p.name for p in written] == ["pipeline_ate_vs_noise.png", "pipeline.txt", "pipeline.json"]
     assert json.loads((tmp_path / "pipeline.json").read_text()) == {"rows": rows}

@@ -116,8 +116,9 @@ def _row(cell: tuple, runs: list[dict], config: SweepConfig) -> dict:
 
 
 def matrix_lines(rows: list[dict]) -> list[str]:
-    """The sweep as a table, then every run's ATE with its seed's texture. "/limit": the median ATE over that of
-    the batch bundle adjustment of the run's own tracks, started at the truth (``limit``)."""
+    """The sweep as a table, then every run's ATE with its seed's texture, then each front-end over all the cells
+    (``summary_lines``). "/limit": the median ATE over that of the batch bundle adjustment of the run's own
+    tracks, started at the truth (``limit``)."""
     lines = [
         f"{'world':<7} {'path':<8} {'noise':>5} {'light':>5} {'frontend':<9} {'ATE med m':>9} {'% path':>6} "
         f"{'|log s|':>7} {'/limit':>6} {'corner-poor':>11} {'failed':>7}"
@@ -137,6 +138,31 @@ def matrix_lines(rows: list[dict]) -> list[str]:
         + " ".join(f"{run['ate_se3']:7.4f}" for run in r["runs"])
         for r in rows
     ]
+    return lines + ["", *summary_lines(rows)]
+
+
+def summary_lines(rows: list[dict]) -> list[str]:
+    """Each front-end at each noise and lighting over all the sweep's worlds, paths and seeds: the runs on
+    photographs and mosaics, their median and mean ATE as % of the path, their median ATE over the limit and
+    |log scale drift|, and the lost frames of all its runs."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["frontend"], r["noise"], r["lighting"]), []).extend(r["runs"])
+    lines = [
+        "Over all worlds, paths and seeds (photographs and mosaics; lost frames of every run):",
+        f"{'frontend':<9} {'noise':>5} {'light':>5} {'runs':>4} {'med %':>6} {'mean %':>6} {'/limit':>6} "
+        f"{'|log s|':>7} {'lost':>5}",
+    ]
+    for (frontend, noise, light), runs in sorted(groups.items()):
+        textured = [r for r in runs if not r["corner_poor"]]
+        share = [100 * r["ate_se3"] / r["path_length"] for r in textured]
+        lines.append(
+            f"{frontend:<9} {noise:>5.2f} {light:>5.2f} {len(textured):>4} {_median(share):>6.2f} "
+            f"{np.mean(share) if share else np.nan:>6.2f} "
+            f"{_median([r['ate_se3'] / r['limit_ate_se3'] for r in textured]):>6.2f} "
+            f"{_median([abs(np.log(r['scale_drift'])) for r in textured]):>7.3f} "
+            f"{sum(r['lost_frames'] for r in runs):>5}"
+        )
     return lines
 
 
