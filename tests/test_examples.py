@@ -3,6 +3,7 @@
 import runpy
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
@@ -68,3 +69,16 @@ def test_track_consistency_example_finds_followed_tracks_on_their_points_more_of
     assert row[:2] == ["clutter", "0"]
     snapped, followed = float(row[2]), float(row[3])
     assert 0 < snapped < followed <= 1, row
+
+
+def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(capsys, monkeypatch):
+    argv = ["limit_split.py", "--frontend", "oracle", "--worlds", "plane", "clutter", "--trajectories", "circle"]
+    monkeypatch.setattr("sys.argv", [*argv, "forward", "--seeds", "1", "--frames", "20"])
+    runpy.run_path(str(EXAMPLES / "limit_split.py"), run_name="__main__")
+    lines = capsys.readouterr().out.splitlines()
+    rows = [line.split() for line in lines[1:-1]]
+    assert [row[:2] for row in rows] == [["plane", "circle"], ["clutter", "circle"], ["clutter", "forward"]]
+    starts, whole, after = (np.array([float(row[i]) for row in rows]) for i in (3, 4, 5))
+    assert starts[0] < 10 and np.all(whole > 0) and np.all(after[np.isfinite(after)] > 0)
+    assert np.isnan(after[starts > 17]).all()  # no three frames in a map to measure
+    assert lines[-1].startswith(f"median {np.median(whole):.2f} (3 runs)")

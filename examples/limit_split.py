@@ -1,0 +1,62 @@
+"""Where a front-end's drift over its limit comes from: each run's ATE over that of the batch bundle adjustment of
+its own tracks started at the truth (the sweep's "/limit"), over the whole run and over the frames from the map's
+first one on (each taken over those frames). Frames before a map are measured two-view; a front-end whose maps
+start late loses most of its ground there.
+
+    python examples/limit_split.py --frontend magic
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import torch
+
+from deepslam.backend import drift
+from deepslam.backend.config import OdometryConfig, PipelineConfig
+from deepslam.backend.evaluation.config import SweepConfig
+from deepslam.backend.evaluation.runs import run_frames, simulated_frames
+from deepslam.frontend.config import TrackerConfig
+from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+
+def split(world: str, trajectory: str, frontend: str, seed: int, frames: int) -> tuple[int, float, float]:
+    """One clean run with the map (``--scale map``): the first frame tracked in a map (``frames`` where none was),
+    its ATE SE3 over the limit's over the whole run, and the same from that frame on (NaN for fewer than 3)."""
+    scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
+    config = PipelineConfig(TrackerConfig(frontend), OdometryConfig(scale="map"))
+    output = run_frames(simulated_frames(scenario), config, total=len(scenario), progress=False, seed=seed)
+    limit = output.limit()
+    start = next((i for i, frame in enumerate(output.diagnostics) if i and frame.phase == "tracking"), frames)
+    whole = drift.ate_rmse(output.estimate, output.truth) / limit.ate_se3
+    if frames - start < 3:
+        return start, whole, float("nan")
+    after = drift.ate_rmse(output.estimate[start:], output.truth[start:])
+    return start, whole, after / drift.ate_rmse(limit.poses[start:], output.truth[start:])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frontend", default="magic", choices=("magic", "classical", "oracle"))
+    parser.add_argument("--worlds", nargs="+", default=["plane", "room", "clutter"], help="default: all three")
+    parser.add_argument("--trajectories", nargs="+", default=["circle", "forward"], help="default: both")
+    parser.add_argument("--seeds", type=int, default=3, help="seeds 0 to N - 1 (default: 3)")
+    parser.add_argument("--frames", type=int, default=60, help="frames a run (default: 60)")
+    args = parser.parse_args()
+    torch.set_num_threads(1)  # as the sweep's runs: the same seed, the same run
+    cells = SweepConfig(worlds=tuple(args.worlds), trajectories=tuple(args.trajectories)).cells()
+    print(f"{'world':<7} {'path':<8} seed  map at  /limit whole  /limit from the map on")
+    splits = []
+    for world, path in dict.fromkeys(cell[:2] for cell in cells):  # no forward path in the plane world
+        for seed in range(args.seeds):
+            start, whole, after = split(world, path, args.frontend, seed, args.frames)
+            splits.append((whole, after))
+            print(f"{world:<7} {path:<8} {seed:>4}  {start:>6}  {whole:>12.2f}  {after:>22.2f}")
+    whole, after = np.array(splits).T
+    mapped = int(np.isfinite(after).sum())
+    print(f"median {np.median(whole):.2f} ({len(whole)} runs), from the map on {np.nanmedian(after):.2f} ({mapped})")
+
+
+if __name__ == "__main__":
+    main()
