@@ -102,17 +102,27 @@ def _row(cell: tuple, runs: list[dict], config: SweepConfig) -> dict:
     the path and over the limit of the run's own tracks (``limit``), and |log scale drift|), failures, runs."""
     world, path, noise, light, frontend = cell
     textured = [r for r in runs if not r["corner_poor"]]
+    shares = _shares(textured)
     return {
         "world": world, "trajectory": path, "noise": noise, "lighting": light, "frontend": frontend,
         "scale": config.scale,
         "median_ate_se3": _median([r["ate_se3"] for r in textured]),
-        "median_ate_pct": _median([100 * r["ate_se3"] / r["path_length"] for r in textured]),
-        "median_log_scale_drift": _median([abs(np.log(r["scale_drift"])) for r in textured]),
-        "median_ate_over_limit": _median([r["ate_se3"] / r["limit_ate_se3"] for r in textured]),
+        "median_ate_pct": _median(shares["ate_pct"]),
+        "median_log_scale_drift": _median(shares["log_scale_drift"]),
+        "median_ate_over_limit": _median(shares["ate_over_limit"]),
         "median_ate_se3_corner_poor": _median([r["ate_se3"] for r in runs if r["corner_poor"]]),
         "failed": sum(r["failed"] for r in runs),
         "runs": runs,
     }  # fmt: skip
+
+
+def _shares(runs: list[dict]) -> dict[str, list[float]]:
+    """Each run's ATE as % of its path, |log scale drift| and ATE over its limit (``limit``)."""
+    return {
+        "ate_pct": [100 * r["ate_se3"] / r["path_length"] for r in runs],
+        "log_scale_drift": [abs(np.log(r["scale_drift"])) for r in runs],
+        "ate_over_limit": [r["ate_se3"] / r["limit_ate_se3"] for r in runs],
+    }
 
 
 def matrix_lines(rows: list[dict]) -> list[str]:
@@ -155,13 +165,12 @@ def summary_lines(rows: list[dict]) -> list[str]:
     ]
     for (frontend, noise, light), runs in sorted(groups.items()):
         textured = [r for r in runs if not r["corner_poor"]]
-        share = [100 * r["ate_se3"] / r["path_length"] for r in textured]
+        shares = _shares(textured)
+        pct = shares["ate_pct"]
         lines.append(
-            f"{frontend:<9} {noise:>5.2f} {light:>5.2f} {len(textured):>4} {_median(share):>6.2f} "
-            f"{np.mean(share) if share else np.nan:>6.2f} "
-            f"{_median([r['ate_se3'] / r['limit_ate_se3'] for r in textured]):>6.2f} "
-            f"{_median([abs(np.log(r['scale_drift'])) for r in textured]):>7.3f} "
-            f"{sum(r['lost_frames'] for r in runs):>5}"
+            f"{frontend:<9} {noise:>5.2f} {light:>5.2f} {len(textured):>4} {_median(pct):>6.2f} "
+            f"{np.mean(pct) if pct else np.nan:>6.2f} {_median(shares['ate_over_limit']):>6.2f} "
+            f"{_median(shares['log_scale_drift']):>7.3f} {sum(r['lost_frames'] for r in runs):>5}"
         )
     return lines
 
