@@ -19,6 +19,8 @@ from deepslam.backend.evaluation.config import SweepConfig
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.frontend.config import TrackerConfig
 from deepslam.sim.scenario import Scenario, ScenarioConfig
+from deepslam.sim.trajectories import KINDS
+from deepslam.sim.world import WORLDS
 
 
 def split(world: str, trajectory: str, frontend: str, seed: int, frames: int) -> tuple[int, float, float]:
@@ -39,11 +41,13 @@ def split(world: str, trajectory: str, frontend: str, seed: int, frames: int) ->
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frontend", default="magic", choices=("magic", "classical", "oracle"))
-    parser.add_argument("--worlds", nargs="+", default=["plane", "room", "clutter"], help="default: all three")
-    parser.add_argument("--trajectories", nargs="+", default=["circle", "forward"], help="default: both")
+    parser.add_argument("--worlds", nargs="+", default=["plane", "room", "clutter"], choices=WORLDS)
+    parser.add_argument("--trajectories", nargs="+", default=["circle", "forward"], choices=KINDS)
     parser.add_argument("--seeds", type=int, default=3, help="seeds 0 to N - 1 (default: 3)")
     parser.add_argument("--frames", type=int, default=60, help="frames a run (default: 60)")
     args = parser.parse_args()
+    if args.seeds < 1 or args.frames < 3:
+        parser.error(f"--seeds must be at least 1 and --frames at least 3, got {args.seeds} and {args.frames}")
     torch.set_num_threads(1)  # as the sweep's runs: the same seed, the same run
     cells = SweepConfig(worlds=tuple(args.worlds), trajectories=tuple(args.trajectories)).cells()
     print(f"{'world':<7} {'path':<8} seed  map at  /limit whole  /limit from the map on")

@@ -82,3 +82,7 @@ def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(ca
     assert starts[0] < 10 and np.all(whole > 0) and np.all(after[np.isfinite(after)] > 0)
     assert np.isnan(after[starts > 17]).all()  # no three frames in a map to measure
     assert lines[-1].startswith(f"median {np.median(whole):.2f} (3 runs)")
+    monkeypatch.setattr("sys.argv", ["limit_split.py", "--seeds", "0"])
+    with pytest.raises(SystemExit) as exit_info:  # a usage error, not a traceback
+        runpy.run_path(str(EXAMPLES / "limit_split.py"), run_name="__main__")
+    assert exit_info.value.code == 2 and "--seeds must be at least 1" in capsys.readouterr().err
