@@ -48,6 +48,9 @@ class MapConfig:
     iterations: int = 10  # Levenberg-Marquardt iterations a bundle adjustment takes at most
     fixed_keyframes: int = 6  # keyframes that left the window last, held fixed where they observe its landmarks
     predict: bool = True  # the front-end looks for a landmark's track where the map projects it (constant motion)
+    # each frame located between keyframes joins the bundle adjustment at once (its pose: the adjusted one), with
+    # the frames located since the keyframe before the current one; off: keyframes only (faster)
+    adjust_frames: bool = True
 
     def __post_init__(self):
         if self.window < 2 or self.min_located < 6 or self.min_initial_landmarks < self.min_located:

@@ -15,7 +15,10 @@ a few pixels apart let their depths and its scale wander). The map's first two k
 it starts, which it does only once their marginal covariance determines the direction between them.
 Observations behind a camera or farther than ``max_reprojection_px`` from their landmark's projection afterwards
 are dropped, as are landmarks left with fewer than two; landmarks that no keyframe of the window observes are
-dropped with the keyframes that leave it.
+dropped with the keyframes that leave it. With ``adjust_frames``, each frame located between keyframes joins the
+adjustment as it comes (``observe``), with the frames located since the keyframe before the current one: its
+observations refine the landmarks the next frame is located against, and its own pose is the adjusted one.
+Frames make no landmarks.
 """
 
 from __future__ import annotations
@@ -119,6 +122,7 @@ class LocalMap:
         self.landmarks: dict[int, np.ndarray] = {}  # track id -> world point (3,)
         self.keyframes: list[Keyframe] = []  # the window, oldest first
         self.retired: list[Keyframe] = []  # keyframes that left the window, held fixed in its adjustment
+        self.frames: list[Keyframe] = []  # frames located since the window's last keyframe but one (``observe``)
 
     @property
     def started(self) -> bool:
@@ -143,7 +147,7 @@ class LocalMap:
         direction between them is known to ``max_start_deg`` (``_direction_sigma_deg``: a short or noisy
         baseline fits its points just as well turned tens of degrees, and a map started there is off for good).
         Returns how many (0 when it did not start)."""
-        self.landmarks, self.keyframes, self.retired = {}, [first], []
+        self.landmarks, self.keyframes, self.retired, self.frames = {}, [first], [], []
         made = self._triangulate(second, self.config.min_initial_px)
         if made < self.config.min_initial_landmarks:
             self.landmarks, self.keyframes = {}, []
@@ -182,6 +186,17 @@ class LocalMap:
                 return Location(None, ids, inliers, f"{int(inliers.sum())} landmarks agree with PnP's pose")
         return Location(pose, ids, inliers)
 
+    def observe(self, frame: Keyframe) -> np.ndarray:
+        """A frame located in the map between keyframes (its pose from ``locate``, its inlier tracks' ids and
+        pixels) joins the bundle adjustment; returns its pose ``T_world_cam`` (4, 4) after it."""
+        self.frames.append(frame)
+        self.adjust()
+        return frame.T_world_cam
+
+    def _views(self) -> list[Keyframe]:
+        """What the bundle adjustment moves: the window's keyframes, then the frames it observed."""
+        return self.keyframes + self.frames
+
     def add(self, keyframe: Keyframe) -> int:
         """A new keyframe (its pose from ``locate``): new landmarks from the tracks it shares with the window,
         a local bundle adjustment, culling. Returns how many landmarks were made."""
@@ -190,6 +205,7 @@ class LocalMap:
         self.keyframes, left = window[-self.config.window :], window[: -self.config.window]
         retired = self.retired + left
         self.retired = retired[max(0, len(retired) - self.config.fixed_keyframes) :]
+        self.frames = [frame for frame in self.frames if frame.index > self.keyframes[-2].index]
         self.adjust()
         self._cull()
         return made
@@ -231,23 +247,24 @@ class LocalMap:
         return good
 
     def _observations(self) -> dict[int, list[tuple[int, np.ndarray]]]:
-        """Landmark id -> [(window position, pixel (2,))] over the window's keyframes."""
+        """Landmark id -> [(position, pixel (2,))] over the adjusted views (``_views``)."""
         seen: dict[int, list[tuple[int, np.ndarray]]] = {}
-        for position, keyframe in enumerate(self.keyframes):
+        for position, keyframe in enumerate(self._views()):
             for track, pixel in zip(keyframe.ids, keyframe.points, strict=True):
                 if int(track) in self.landmarks:
                     seen.setdefault(int(track), []).append((position, pixel))
         return seen
 
     def adjust(self, ranged: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
-        """Bundle adjustment of the window (the oldest keyframe fixed, the distance to it of the keyframe at window
-        position ``ranged`` kept: by default the next), then drop observations that do not fit
-        (``_drop_outliers``). Returns the graph and its solution (None where there was nothing to adjust)."""
+        """Bundle adjustment of the window and the frames it observed (the oldest keyframe fixed, the distance to
+        it of the keyframe at window position ``ranged`` kept: by default the next), then drop observations that do
+        not fit (``_drop_outliers``). Returns the graph and its solution (None where there was nothing to adjust)."""
         seen = {track: views for track, views in self._observations().items() if len(views) >= 2}
         if len(self.keyframes) < 2 or not seen:
             return None
+        cameras = self._views()
         graph, values, noise = gtsam.NonlinearFactorGraph(), gtsam.Values(), pixel_noise(self.config.huber_px)
-        for position, keyframe in enumerate(self.keyframes):
+        for position, keyframe in enumerate(cameras):
             values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
         first, second = (gtsam.symbol("x", position) for position in (0, ranged))
         held = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
@@ -258,7 +275,7 @@ class LocalMap:
                 first, second, float(distance), gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * distance + 1e-9)
             )
         )
-        calibrations = [calibration(keyframe.K) for keyframe in self.keyframes]
+        calibrations = [calibration(keyframe.K) for keyframe in cameras]
         for track, views in seen.items():
             values.insert(gtsam.symbol("l", track), gtsam.Point3(self.landmarks[track]))
             for position, pixel in views:
@@ -277,7 +294,7 @@ class LocalMap:
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.iterations)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        for position, keyframe in enumerate(self.keyframes):
+        for position, keyframe in enumerate(cameras):
             keyframe.T_world_cam = result.atPose3(gtsam.symbol("x", position)).matrix()
         for track in seen:
             self.landmarks[track] = result.atPoint3(gtsam.symbol("l", track))
@@ -306,9 +323,9 @@ class LocalMap:
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, pose, landmark, camera))
 
     def _drop_outliers(self) -> None:
-        """Drop the keyframes' observations behind the camera or farther than ``max_reprojection_px`` from their
-        landmark's projection."""
-        for keyframe in self.keyframes:
+        """Drop the adjusted views' observations behind the camera or farther than ``max_reprojection_px`` from
+        their landmark's projection."""
+        for keyframe in self._views():
             known = self.known(keyframe.ids)
             world = self.points_of(keyframe.ids[known])
             pixels, depth = project(keyframe.T_world_cam, keyframe.K, world)

@@ -330,6 +330,7 @@ class Odometry:
         checkpoint()
         measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
         decision, T = self._update_keyframes(measurement, rel, len(pairs))
+        T, adjusted = self._adjust_located(k, kf, rel, T, (pairs, measured_points))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
         self.waiting = {i: view for i, view in self.waiting.items() if i > self.keyframe} if self._map_waits() else {}
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
@@ -344,11 +345,27 @@ class Odometry:
             "graph": 1e3 * (optimised - measured),
             "covariance": 1e3 * (time.perf_counter() - optimised),
         }
-        landmarks, map_points = self._map_state(self.keyframe == k)
+        landmarks, map_points = self._map_state(self.keyframe == k or adjusted)
         return FrameResult(
             k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
             shared, map_points, self._phase(rel), decision.reason,
         )  # fmt: skip
+
+    def _adjust_located(
+        self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, located: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[np.ndarray, bool]:
+        """Frame k, located in the map against keyframe kf as ``T`` (4, 4) from it (``rel``: PnP's inliers among
+        the landmark pairs (K, 2) and frame k's points (K, 2) of them, ``located``) and not made a keyframe: with
+        ``map.adjust_frames``, its inliers join the map's bundle adjustment (``LocalMap.observe``). Returns frame
+        k's pose from kf (4, 4), the adjusted one where it joined, and whether it did (the map moved)."""
+        if not (self.config.map.adjust_frames and rel.model == "pnp" and k in self.measured):
+            return T, False
+        (frame_k, tracks_k), (pairs, points) = self.history[k], located
+        view = Keyframe(k, self._map_pose(kf) @ T, frame_k.K, tracks_k.ids[pairs[rel.inliers, 1]], points[rel.inliers])
+        pose = self.map.observe(view)  # moves keyframe kf too
+        adjusted = np.linalg.inv(self._map_pose(kf)) @ pose
+        self.measured[k] = replace(self.measured[k], T=adjusted)
+        return adjusted, True
 
     def _measure_velocity(self, k: int, rel: relpose.RelativePose) -> None:
         """Keep the step from frame k - 1 to frame k among the map's ``steps`` where both were located in it."""

@@ -162,9 +162,9 @@ def test_bundle_adjustment_drops_observations_that_do_not_fit(rng):
     assert not any(int(track) in local_map.landmarks for track in kept[np.isin(kept, moved)])  # none made
 
 
-def _run(world, trajectory, frontend="oracle", scale="map", frames=45, seed=0):
+def _run(world, trajectory, frontend="oracle", scale="map", frames=45, seed=0, map_config=None):
     scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
-    config = PipelineConfig(TrackerConfig(frontend), OdometryConfig(scale=scale))
+    config = PipelineConfig(TrackerConfig(frontend), OdometryConfig(scale=scale, map=map_config or MapConfig()))
     results, truth = [], []
     for pipeline, frame, result in run_pipeline(simulated_frames(scenario), config):  # noqa: B007 (the last is kept)
         results.append(result)
@@ -183,6 +183,36 @@ def test_scale_map_follows_a_cluttered_world_with_the_first_baselines_scale():
     assert started < 15 and not any(r.lost for r in results[started:])  # (two-view poses may be ambiguous before)
     assert sum(r.relative.model == "pnp" for r in results[started:]) > 0.9 * (len(results) - started)
     assert pipeline.odometry.map.started and len(pipeline.odometry.map.keyframes) <= MapConfig().window
+
+
+def test_frames_located_between_keyframes_join_the_adjustment_until_the_keyframe_before_leaves(rng):
+    world = _world(rng)
+    local_map = LocalMap(MapConfig())
+    local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.6), world, rng))
+    for index, x in ((2, 0.7), (3, 0.8)):
+        seen = _keyframe(index, _sideways(x), world, rng)
+        location = local_map.locate(seen.ids, seen.points, K, _sideways(x - 0.1))
+        known = local_map.known(seen.ids)
+        inliers = location.inliers
+        frame = Keyframe(index, location.T_world_cam, K, location.ids[inliers], seen.points[known][inliers])
+        adjusted = local_map.observe(frame)
+        assert np.linalg.norm(adjusted[:3, 3] - [x, 0, 0]) < 0.05
+    assert [frame.index for frame in local_map.frames] == [2, 3]
+    seen_in = {track for frame in local_map.frames for track in frame.ids.tolist()}
+    assert seen_in & set(local_map.landmarks)  # their observations are the landmarks'
+    local_map.add(_keyframe(4, _sideways(1.0), world, rng))
+    assert [frame.index for frame in local_map.frames] == [2, 3]  # since keyframe 1, the one before the current
+    local_map.add(_keyframe(5, _sideways(1.2), world, rng))
+    assert local_map.frames == []
+
+
+@pytest.mark.slow
+def test_located_frames_in_the_adjustment_bring_the_online_poses_nearer_the_truth():
+    errors = {}
+    for adjust_frames in (True, False):
+        _, results, truth = _run("room", "circle", frames=60, map_config=MapConfig(adjust_frames=adjust_frames))
+        errors[adjust_frames] = drift.ate_rmse(np.stack([r.T_world_cam for r in results]), truth)
+    assert errors[True] < 0.8 * errors[False], errors
 
 
 @pytest.mark.slow
@@ -392,7 +422,7 @@ def test_the_map_is_logged_as_a_point_cloud_with_its_keyframes(tmp_path):
     pipeline = result["pipeline"]
     assert clouds and len(clouds[-1]) > 30 and message.header.frame_id == "world"
     ids, points = pipeline.odometry.map.points()
-    assert np.array_equal(_rows(clouds[-1]), _rows(points.astype("<f4")))  # the map as the last keyframe left it
+    assert np.array_equal(_rows(clouds[-1]), _rows(points.astype("<f4")))  # the map as the last frame left it
     assert keyframes[-1] == sum(d.keyframe for d in result["diagnostics"])  # every keyframe, marked
     frames = list(read_frames(log))
     assert frames[-1].diagnostics.landmarks == len(ids) > 0
