@@ -290,7 +290,7 @@ class LocalMap:
                         False,
                     )  # fmt: skip
                 )
-        self._hold_retired(graph, values, seen, noise, held)
+        self._hold_retired(graph, seen, noise)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.iterations)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
@@ -302,25 +302,15 @@ class LocalMap:
         return graph, result
 
     def _hold_retired(
-        self,
-        graph: gtsam.NonlinearFactorGraph,
-        values: gtsam.Values,
-        seen: dict[int, list],
-        noise: gtsam.noiseModel.Base,
-        held: gtsam.noiseModel.Base,
+        self, graph: gtsam.NonlinearFactorGraph, seen: dict[int, list], noise: gtsam.noiseModel.Base
     ) -> None:
         """Add the observations (with ``noise``) of the adjusted landmarks (ids: ``seen``'s keys) by the keyframes
-        that left the window to ``graph``, their poses in ``values`` held by the prior ``held``."""
-        for position, keyframe in enumerate(self.retired):
-            observed = [(int(t), p) for t, p in zip(keyframe.ids, keyframe.points, strict=True) if int(t) in seen]
-            if not observed:
-                continue
-            pose, camera = gtsam.symbol("r", position), calibration(keyframe.K)
-            values.insert(pose, gtsam.Pose3(keyframe.T_world_cam))
-            graph.add(gtsam.PriorFactorPose3(pose, gtsam.Pose3(keyframe.T_world_cam), held))
-            for track, pixel in observed:
-                landmark = gtsam.symbol("l", track)
-                graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, pose, landmark, camera))
+        that left the window to ``graph``, from cameras held where they are (constants, not variables)."""
+        for keyframe in self.retired:
+            camera = gtsam.PinholeCameraCal3_S2(gtsam.Pose3(keyframe.T_world_cam), calibration(keyframe.K))
+            for track, pixel in zip(keyframe.ids, keyframe.points, strict=True):
+                if int(track) in seen:
+                    graph.add(gtsam.TriangulationFactorCal3_S2(camera, pixel, noise, gtsam.symbol("l", int(track))))
 
     def _drop_outliers(self) -> None:
         """Drop the adjusted views' observations behind the camera or farther than ``max_reprojection_px`` from
