@@ -246,79 +246,77 @@ class LocalMap:
             )
         return good
 
-    def _observations(self) -> dict[int, list[tuple[int, np.ndarray]]]:
-        """Landmark id -> [(position, pixel (2,))] over the adjusted views (``_views``)."""
-        seen: dict[int, list[tuple[int, np.ndarray]]] = {}
-        for position, keyframe in enumerate(self._views()):
-            for track, pixel in zip(keyframe.ids, keyframe.points, strict=True):
-                if int(track) in self.landmarks:
-                    seen.setdefault(int(track), []).append((position, pixel))
-        return seen
-
     def adjust(self, ranged: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
         """Bundle adjustment of the window and the frames it observed (the oldest keyframe fixed, the distance to
-        it of the keyframe at window position ``ranged`` kept: by default the next), then drop observations that do
-        not fit (``_drop_outliers``). Returns the graph and its solution (None where there was nothing to adjust)."""
-        seen = {track: views for track, views in self._observations().items() if len(views) >= 2}
-        if len(self.keyframes) < 2 or not seen:
-            return None
+        it of the keyframe at window position ``ranged`` kept: by default the next) over the landmarks two or more
+        of them observe, then drop observations that do not fit (``_drop_outliers``). Returns the graph and its
+        solution (None where there was nothing to adjust)."""
         cameras = self._views()
+        adjusted = self._seen_twice(cameras)
+        if len(self.keyframes) < 2 or not len(adjusted):
+            return None
         graph, values, noise = gtsam.NonlinearFactorGraph(), gtsam.Values(), pixel_noise(self.config.huber_px)
         for position, keyframe in enumerate(cameras):
             values.insert(gtsam.symbol("x", position), gtsam.Pose3(keyframe.T_world_cam))
-        first, second = (gtsam.symbol("x", position) for position in (0, ranged))
-        held = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
-        graph.add(gtsam.PriorFactorPose3(first, values.atPose3(first), held))
-        distance = np.linalg.norm(self.keyframes[ranged].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
-        graph.add(
-            gtsam.RangeFactorPose3(
-                first, second, float(distance), gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * distance + 1e-9)
-            )
-        )
-        calibrations = [calibration(keyframe.K) for keyframe in cameras]
-        for track, views in seen.items():
+        for track in adjusted.tolist():
             values.insert(gtsam.symbol("l", track), gtsam.Point3(self.landmarks[track]))
-            for position, pixel in views:
-                graph.add(
-                    gtsam.GenericProjectionFactorCal3_S2(
-                        pixel,
-                        noise,
-                        gtsam.symbol("x", position),
-                        gtsam.symbol("l", track),
-                        calibrations[position],
-                        False,
-                        False,
-                    )  # fmt: skip
-                )
-        self._hold_retired(graph, seen, noise)
+        self._hold_gauge(graph, values, ranged)
+        for position, keyframe in enumerate(cameras):
+            pose, camera = gtsam.symbol("x", position), calibration(keyframe.K)
+            observed = np.isin(keyframe.ids, adjusted)
+            for track, pixel in zip(keyframe.ids[observed].tolist(), keyframe.points[observed], strict=True):
+                landmark = gtsam.symbol("l", track)
+                graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, pose, landmark, camera, False, False))
+        self._hold_retired(graph, adjusted, noise)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.iterations)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         for position, keyframe in enumerate(cameras):
             keyframe.T_world_cam = result.atPose3(gtsam.symbol("x", position)).matrix()
-        for track in seen:
+        for track in adjusted.tolist():
             self.landmarks[track] = result.atPoint3(gtsam.symbol("l", track))
         self._drop_outliers()
         return graph, result
 
+    def _seen_twice(self, cameras: list[Keyframe]) -> np.ndarray:
+        """The landmark ids (M,) that two or more of ``cameras`` observe, ascending."""
+        ids = np.fromiter(self.landmarks, np.int64, len(self.landmarks))
+        observed = np.concatenate([keyframe.ids[np.isin(keyframe.ids, ids)] for keyframe in cameras])
+        tracks, views = np.unique(observed.astype(np.int64), return_counts=True)
+        return tracks[views >= 2]
+
+    def _hold_gauge(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, ranged: int) -> None:
+        """Hold the window's oldest keyframe (variable ``x0`` in ``values``) where it is and keep its distance to
+        the keyframe at window position ``ranged``: the gauge and the scale of the adjustment."""
+        first, second = (gtsam.symbol("x", position) for position in (0, ranged))
+        graph.add(
+            gtsam.PriorFactorPose3(first, values.atPose3(first), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA))
+        )
+        distance = np.linalg.norm(self.keyframes[ranged].T_world_cam[:3, 3] - self.keyframes[0].T_world_cam[:3, 3])
+        kept = gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * distance + 1e-9)
+        graph.add(gtsam.RangeFactorPose3(first, second, float(distance), kept))
+
     def _hold_retired(
-        self, graph: gtsam.NonlinearFactorGraph, seen: dict[int, list], noise: gtsam.noiseModel.Base
+        self, graph: gtsam.NonlinearFactorGraph, adjusted: np.ndarray, noise: gtsam.noiseModel.Base
     ) -> None:
-        """Add the observations (with ``noise``) of the adjusted landmarks (ids: ``seen``'s keys) by the keyframes
-        that left the window to ``graph``, from cameras held where they are (constants, not variables)."""
+        """Add the observations (with ``noise``) of the ``adjusted`` landmarks (ids (M,)) by the keyframes that left
+        the window to ``graph``, from cameras held where they are (constants, not variables)."""
         for keyframe in self.retired:
             camera = gtsam.PinholeCameraCal3_S2(gtsam.Pose3(keyframe.T_world_cam), calibration(keyframe.K))
-            for track, pixel in zip(keyframe.ids, keyframe.points, strict=True):
-                if int(track) in seen:
-                    graph.add(gtsam.TriangulationFactorCal3_S2(camera, pixel, noise, gtsam.symbol("l", int(track))))
+            observed = np.isin(keyframe.ids, adjusted)
+            for track, pixel in zip(keyframe.ids[observed].tolist(), keyframe.points[observed], strict=True):
+                graph.add(gtsam.TriangulationFactorCal3_S2(camera, pixel, noise, gtsam.symbol("l", track)))
 
     def _drop_outliers(self) -> None:
         """Drop the adjusted views' observations behind the camera or farther than ``max_reprojection_px`` from
         their landmark's projection."""
+        ids, world = self.points()
+        order = np.argsort(ids)
+        ids, world = ids[order], world[order]
         for keyframe in self._views():
-            known = self.known(keyframe.ids)
-            world = self.points_of(keyframe.ids[known])
-            pixels, depth = project(keyframe.T_world_cam, keyframe.K, world)
+            at = np.minimum(np.searchsorted(ids, keyframe.ids), len(ids) - 1)
+            known = ids[at] == keyframe.ids
+            pixels, depth = project(keyframe.T_world_cam, keyframe.K, world[at[known]])
             bad = (depth <= 0) | (
                 np.linalg.norm(pixels - keyframe.points[known], axis=1) > self.config.max_reprojection_px
             )
