@@ -432,7 +432,8 @@ def _torchrun(out: Path, iterations: int, batch: int = 4):
 def test_two_ranks_train_in_step_and_resume_their_streams(tmp_path):
     straight = _torchrun(tmp_path / "straight", 6)
     assert straight.returncode == 0, straight.stderr[-2000:]
-    assert _torchrun(tmp_path / "resumed", 4).returncode == 0  # stopped at step 4 ...
+    stopped = _torchrun(tmp_path / "resumed", 4)  # stopped at step 4 ...
+    assert stopped.returncode == 0, stopped.stderr[-2000:]
     resumed = _torchrun(tmp_path / "resumed", 6)  # ... and resumed: every rank continues its own stream
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     a, b = (torch.load(tmp_path / run / "last.pt", weights_only=True) for run in ("straight", "resumed"))
