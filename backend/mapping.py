@@ -23,6 +23,7 @@ Frames make no landmarks.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -263,9 +264,7 @@ class LocalMap:
         self._hold_gauge(graph, values, ranged)
         for position, keyframe in enumerate(cameras):
             pose, camera = gtsam.symbol("x", position), calibration(keyframe.K)
-            observed = np.isin(keyframe.ids, adjusted)
-            for track, pixel in zip(keyframe.ids[observed].tolist(), keyframe.points[observed], strict=True):
-                landmark = gtsam.symbol("l", track)
+            for landmark, pixel in _observations(keyframe, adjusted):
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, pose, landmark, camera, False, False))
         self._hold_retired(graph, adjusted, noise)
         params = gtsam.LevenbergMarquardtParams()
@@ -280,8 +279,7 @@ class LocalMap:
 
     def _seen_twice(self, cameras: list[Keyframe]) -> np.ndarray:
         """The landmark ids (M,) that two or more of ``cameras`` observe, ascending."""
-        ids = np.fromiter(self.landmarks, np.int64, len(self.landmarks))
-        observed = np.concatenate([keyframe.ids[np.isin(keyframe.ids, ids)] for keyframe in cameras])
+        observed = np.concatenate([keyframe.ids[self.known(keyframe.ids)] for keyframe in cameras])
         tracks, views = np.unique(observed.astype(np.int64), return_counts=True)
         return tracks[views >= 2]
 
@@ -303,20 +301,16 @@ class LocalMap:
         the window to ``graph``, from cameras held where they are (constants, not variables)."""
         for keyframe in self.retired:
             camera = gtsam.PinholeCameraCal3_S2(gtsam.Pose3(keyframe.T_world_cam), calibration(keyframe.K))
-            observed = np.isin(keyframe.ids, adjusted)
-            for track, pixel in zip(keyframe.ids[observed].tolist(), keyframe.points[observed], strict=True):
-                graph.add(gtsam.TriangulationFactorCal3_S2(camera, pixel, noise, gtsam.symbol("l", track)))
+            for landmark, pixel in _observations(keyframe, adjusted):
+                graph.add(gtsam.TriangulationFactorCal3_S2(camera, pixel, noise, landmark))
 
     def _drop_outliers(self) -> None:
         """Drop the adjusted views' observations behind the camera or farther than ``max_reprojection_px`` from
         their landmark's projection."""
-        ids, world = self.points()
-        order = np.argsort(ids)
-        ids, world = ids[order], world[order]
         for keyframe in self._views():
-            at = np.minimum(np.searchsorted(ids, keyframe.ids), len(ids) - 1)
-            known = ids[at] == keyframe.ids
-            pixels, depth = project(keyframe.T_world_cam, keyframe.K, world[at[known]])
+            known = self.known(keyframe.ids)
+            world = self.points_of(keyframe.ids[known])
+            pixels, depth = project(keyframe.T_world_cam, keyframe.K, world)
             bad = (depth <= 0) | (
                 np.linalg.norm(pixels - keyframe.points[known], axis=1) > self.config.max_reprojection_px
             )
@@ -328,6 +322,14 @@ class LocalMap:
         """Drop the landmarks no keyframe of the window observes."""
         observed = set(np.concatenate([k.ids for k in self.keyframes]).tolist())
         self.landmarks = {track: point for track, point in self.landmarks.items() if track in observed}
+
+
+def _observations(keyframe: Keyframe, adjusted: np.ndarray) -> Iterator[tuple[int, np.ndarray]]:
+    """The gtsam landmark key and pixel (2,) of each of ``keyframe``'s observations of the ``adjusted`` landmarks
+    (ids (M,)), in the keyframe's order."""
+    observed = np.isin(keyframe.ids, adjusted)
+    for track, pixel in zip(keyframe.ids[observed].tolist(), keyframe.points[observed], strict=True):
+        yield gtsam.symbol("l", track), pixel
 
 
 def adjust_views(views: list[Keyframe], config: MapConfig, min_px: float) -> np.ndarray | None:
