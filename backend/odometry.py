@@ -33,7 +33,6 @@ the keyframe (``_initialising``): measured one by one over a few pixels of paral
 from __future__ import annotations
 
 import time
-from collections import deque
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Callable, Iterator
@@ -45,6 +44,7 @@ from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.backend.keyframes import Decision, KeyframeEvidence, KeyframePolicy, MapLocation, Phase
 from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
+from deepslam.backend.scale import MapScale, StepLengths, with_length
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
 from deepslam.geometry import in_image, rotation_angle, vector_angle
@@ -59,11 +59,6 @@ FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chose
 # a frame measured two-view while a map waits is adjusted with at most this many frames since the keyframe ...
 INITIAL_VIEWS = 20
 INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length)
-MOTION_STEPS = 5  # the camera's speed: the median length of the last this many steps the map measured
-
-
-StepLengths = Callable[[int, int], float | None]
-"""The true distance (m) between the cameras of frames i and j (indices in processing order), None if unknown."""
 
 
 @dataclass(frozen=True)
@@ -118,13 +113,6 @@ class FrameResult:
     @property
     def lost(self) -> bool:
         return self.relative is not None and not self.relative.ok
-
-
-def with_length(T: np.ndarray, length: float) -> np.ndarray:
-    """A copy of the pose ``T`` (4, 4) whose translation is ``length`` long (zero stays zero)."""
-    scaled = T.copy()
-    scaled[:3, 3] *= length / max(float(np.linalg.norm(T[:3, 3])), 1e-12)
-    return scaled
 
 
 def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
@@ -192,41 +180,22 @@ class Odometry:
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
         self.map = LocalMap(config.map) if config.scale == "map" else None
-        self.first_baseline = config.scale == "map"  # lengths from the first baseline's source (no map yet)
-        self.first_map = config.scale == "map"  # no map has started yet (its baseline takes the true length)
-        self.length_per_px = 1.0 / config.keyframe_parallax  # a two-view step's length per pixel of track motion
+        self.scale = MapScale(step_lengths, config.map.start_within, config.keyframe_parallax)
         self.located = 0  # landmarks the last frame was located with (map only)
         self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
         self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
         # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px, in order
         self.waiting: dict[int, Keyframe] = {}
-        # the last MOTION_STEPS steps (4, 4) between two consecutive frames located in the map, T_previous_current
-        self.steps: deque[np.ndarray] = deque(maxlen=MOTION_STEPS)
-        self.located_before = False  # the last frame was located in the map
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
         if self.config.scale == "gt":
             return self.step_lengths(i, j)
         if self.config.scale == "map":
-            return self._two_view_length(i, j)
+            pairs = shared_tracks(self.history[i][1], self.history[j][1])
+            return self.scale.two_view(i, j, self._parallax(i, j, pairs))
         return float(rel.t_over_d or 0.0) * self.plane_distance
-
-    def _two_view_length(self, i: int, j: int) -> float:
-        """With a map, the length of a two-view step between frames i < j. Until the first map starts (for at most
-        ``map.start_within`` frames), the true length where ``step_lengths`` knows it. Once a map has measured a
-        step (``_velocity``), that step's length times the frames between: the pixels a step moves tracks depend on
-        their depth, which has changed since the first baseline. Else in proportion to the median motion of their
-        shared tracks: metres a pixel from the last true length, or one unit for ``keyframe_parallax`` pixels."""
-        parallax = self._parallax(i, j, shared_tracks(self.history[i][1], self.history[j][1]))
-        known = self.step_lengths(i, j) if self.first_baseline and self.step_lengths is not None else None
-        if known is not None and parallax > 0:
-            self.length_per_px = known / parallax
-        velocity = self._velocity() if known is None else None
-        if velocity is not None:
-            return float(np.linalg.norm(velocity[:3, 3])) * (j - i)
-        return known if known is not None else parallax * self.length_per_px
 
     def _locate(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Frame k located in the map by PnP on the landmarks among the pairs the front-end confirms with keyframe
@@ -368,17 +337,9 @@ class Odometry:
         return adjusted, True
 
     def _measure_velocity(self, k: int, rel: relpose.RelativePose) -> None:
-        """Keep the step from frame k - 1 to frame k among the map's ``steps`` where both were located in it."""
-        if rel.model == "pnp" and self.located_before:
-            self.steps.append(np.linalg.inv(self.estimate(k - 1)) @ self.estimate(k))
-        self.located_before = rel.model == "pnp"
-
-    def _velocity(self) -> np.ndarray | None:
-        """The camera's step (4, 4) from one frame to the next as the map last measured it: the last of its
-        ``steps``, as long as their median (a single step is a few millimetres off); None before it measured any."""
-        if not self.steps:
-            return None
-        return with_length(self.steps[-1], float(np.median([np.linalg.norm(step[:3, 3]) for step in self.steps])))
+        """Tell the scale the step from frame k - 1 to frame k where the map located frame k (``MapScale.record``)."""
+        located = rel.model == "pnp"
+        self.scale.record(np.linalg.inv(self.estimate(k - 1)) @ self.estimate(k) if located else None)
 
     def _track(self, image: np.ndarray, K: np.ndarray) -> Tracks:
         """The front-end's tracks in the next frame, told first where the map expects its landmarks."""
@@ -470,15 +431,15 @@ class Odometry:
     def _measurement(self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, parallax: float) -> Measurement:
         """Frame k's measured pose ``T`` (4, 4) from keyframe kf, with ``parallax`` (px), as the graph would take
         it; where no pose could be measured, very uncertain, so that the graph stays connected: frame k - 1 moved on
-        by the last step the map measured (``_velocity``), or before any map, no motion since frame k - 1. Until it
-        joins the graph, frame k's estimate is the keyframe's composed with it."""
+        by the last step the map measured (``MapScale.velocity``), or before any map, no motion since frame k - 1.
+        Until it joins the graph, frame k's estimate is the keyframe's composed with it."""
         if rel.ok:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
             )
             self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
         else:
-            last, velocity = self.estimate(k - 1), self._velocity()
+            last, velocity = self.estimate(k - 1), self.scale.velocity()
             T = np.linalg.inv(self.graph.pose(kf)) @ (last if velocity is None else last @ velocity)
             sigmas = np.array([0.5] * 3 + [1.0] * 3)
         measurement = Measurement(kf, k, T, sigmas)
@@ -538,7 +499,7 @@ class Odometry:
             self.graph.refine(KEYFRAME_UPDATES)
         if self.map is not None and self.keyframe == k and not rel.ok:
             self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
-        self.first_baseline &= not self._map_holds(self.keyframe) and k < self.config.map.start_within
+        self.scale.frame_done(k, self._map_holds(self.keyframe))
         return decision, measurement.T
 
     def _advance(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, started: bool) -> None:
@@ -580,9 +541,9 @@ class Odometry:
             return False
         origin = self.graph.pose(kf)
         for candidate in self._start_poses(kf, k, rel, T):
-            baseline = self._first_baseline(kf, k, candidate)
+            baseline = self.scale.first_baseline(candidate, kf, k)
             if self.map.start(self._keyframe(kf, origin), self._keyframe(k, origin @ baseline)):
-                self.first_map = False
+                self.scale.map_started()
                 return True
         return False
 
@@ -604,12 +565,6 @@ class Odometry:
         if not rel.ok or rel.rotation_only:
             return None
         return with_length(rel.T_c1_c2, float(np.linalg.norm(T[:3, 3])))
-
-    def _first_baseline(self, kf: int, k: int, T: np.ndarray) -> np.ndarray:
-        """``T`` (4, 4), frame k seen from keyframe kf, with the true length of the first map's baseline where
-        the input knows it (the scale every later map carries), else as it is."""
-        known = self.step_lengths(kf, k) if self.first_map and self.step_lengths is not None else None
-        return T if known is None else with_length(T, known)
 
     def _adjusted(self) -> tuple[int, np.ndarray, np.ndarray]:
         """The map's newest keyframe seen from the one before it after the bundle adjustment: the index of the one

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from deepslam.backend.config import PipelineConfig
-from deepslam.backend.odometry import FrameResult, Odometry, StepLengths
+from deepslam.backend.odometry import FrameResult, Odometry
+from deepslam.backend.scale import StepLengths
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Tracker, make_tracker
 
