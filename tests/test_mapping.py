@@ -13,6 +13,7 @@ from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
 from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
 from deepslam.backend.pipeline import Pipeline
+from deepslam.backend.scale import MapScale, with_length
 from deepslam.frontend.config import TrackerConfig
 from deepslam.frontend.tracking import OracleTracker, Tracks
 from deepslam.geometry import vector_angle
@@ -430,3 +431,20 @@ def test_the_map_is_logged_as_a_point_cloud_with_its_keyframes(tmp_path):
 
 def _rows(points: np.ndarray) -> np.ndarray:
     return points[np.lexsort(points.T[::-1])]
+
+
+def test_map_scale_takes_true_lengths_until_a_map_then_the_speed_it_measures():
+    scale = MapScale(lambda i, j: 0.1 * (j - i), start_within=20, keyframe_parallax=10.0)
+    assert scale.two_view(0, 2, parallax=4.0) == pytest.approx(0.2)  # the truth, 0.05 m a pixel
+    step = np.eye(4)
+    step[:3, 3] = [0.0, 0.0, 1.0]
+    assert np.linalg.norm(scale.first_baseline(step, 0, 3)[:3, 3]) == pytest.approx(0.3)
+    scale.map_started()
+    scale.frame_done(3, map_holds_keyframe=True)
+    assert scale.first_baseline(step, 0, 3) is step  # later maps carry the first one's scale
+    assert scale.two_view(3, 5, parallax=8.0) == pytest.approx(0.4)  # metres a pixel of the last true length
+    scale.record(with_length(step, 0.03))  # the frame before was not located: no step yet
+    assert scale.velocity() is None
+    scale.record(with_length(step, 0.03))
+    scale.record(None)  # a frame the map did not locate keeps the last speed
+    assert scale.two_view(5, 7, parallax=8.0) == pytest.approx(0.06)
