@@ -181,9 +181,8 @@ class Odometry:
         self.lost_in_a_row = 0
         self.map = LocalMap(config.map) if config.scale == "map" else None
         self.scale = MapScale(step_lengths, config.map.start_within, config.keyframe_parallax)
-        self.located = 0  # landmarks the last frame was located with (map only)
-        self.baseline_px = 0.0  # the angle (px) its keyframe's centre and its own span at its landmarks' median depth
-        self.first_located: tuple[int, int] | None = None  # (keyframe, landmarks) of the first frame located against it
+        # (keyframe, how the last frame measured against it in the map was located): map only
+        self.location: tuple[int, MapLocation] | None = None
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
         # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px, in order
         self.waiting: dict[int, Keyframe] = {}
@@ -206,15 +205,16 @@ class Odometry:
         landmark = self.map.known(ids)
         pairs, points = pairs[landmark], points[landmark]
         location = self.map.locate(ids[landmark], points, frame_k.K, self._in_map(kf, self.estimate(k - 1)))
-        self.located = int(location.inliers.sum())
-        if self.first_located is None or self.first_located[0] != kf:
-            self.first_located = (kf, self.located)
+        located = int(location.inliers.sum())
+        first = self.location[1].first_located if self.location and self.location[0] == kf else located
         if location.T_world_cam is None:
+            self.location = (kf, MapLocation(located, first, 0.0))
             failed = relpose.RelativePose(np.eye(4), "failed", location.inliers, reason=location.reason)
             return failed, np.eye(4), pairs, points
         T = np.linalg.inv(self._map_pose(kf)) @ location.T_world_cam
         depth = np.median(project(location.T_world_cam, frame_k.K, self.map.points_of(location.ids))[1])
-        self.baseline_px = float(np.linalg.norm(T[:3, 3]) / max(depth, 1e-9) * frame_k.K[0, 0])
+        baseline_px = float(np.linalg.norm(T[:3, 3]) / max(depth, 1e-9) * frame_k.K[0, 0])
+        self.location = (kf, MapLocation(located, first, baseline_px))
         return relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points
 
     def _confirmed(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -518,9 +518,9 @@ class Odometry:
         """What frame k, measured from keyframe kf, showed against the current keyframe."""
         current = self.keyframe
         pairs = shared_tracks(self.history[current][1], self.history[k][1])
-        location = None
-        if self._map_holds(current) and self.first_located is not None and self.first_located[0] == current:
-            location = MapLocation(self.located, self.first_located[1], self.baseline_px)
+        location = (
+            self.location[1] if self._map_holds(current) and self.location and self.location[0] == current else None
+        )
         return KeyframeEvidence(
             self.lost_in_a_row, started, len(pairs), self._parallax(current, k, pairs), kf == current, confirmed,
             self.map is not None and not self.map.started, len(self.history[k][1].ids), location,
