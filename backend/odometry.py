@@ -205,8 +205,8 @@ class Odometry:
         landmark = self.map.known(ids)
         pairs, points = pairs[landmark], points[landmark]
         location = self.map.locate(ids[landmark], points, frame_k.K, self._in_map(kf, self.estimate(k - 1)))
-        located = int(location.inliers.sum())
-        first = self.location[1].first_located if self.location and self.location[0] == kf else located
+        located, before = int(location.inliers.sum()), self._located_against(kf)
+        first = before.first_located if before is not None else located
         if location.T_world_cam is None:
             self.location = (kf, MapLocation(located, first, 0.0))
             failed = relpose.RelativePose(np.eye(4), "failed", location.inliers, reason=location.reason)
@@ -216,6 +216,10 @@ class Odometry:
         baseline_px = float(np.linalg.norm(T[:3, 3]) / max(depth, 1e-9) * frame_k.K[0, 0])
         self.location = (kf, MapLocation(located, first, baseline_px))
         return relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points
+
+    def _located_against(self, kf: int) -> MapLocation | None:
+        """How the last frame located in the map against keyframe kf was, or None where none was."""
+        return self.location[1] if self.location is not None and self.location[0] == kf else None
 
     def _confirmed(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """The pairs (K, 2) of stored frames i and j's shared tracks the front-end confirms, and frame j's points
@@ -518,9 +522,7 @@ class Odometry:
         """What frame k, measured from keyframe kf, showed against the current keyframe."""
         current = self.keyframe
         pairs = shared_tracks(self.history[current][1], self.history[k][1])
-        location = (
-            self.location[1] if self._map_holds(current) and self.location and self.location[0] == current else None
-        )
+        location = self._located_against(current) if self._map_holds(current) else None
         return KeyframeEvidence(
             self.lost_in_a_row, started, len(pairs), self._parallax(current, k, pairs), kf == current, confirmed,
             self.map is not None and not self.map.started, len(self.history[k][1].ids), location,

@@ -49,7 +49,7 @@ class MapScale:
 
     def two_view(self, i: int, j: int, parallax: float) -> float:
         """The length of a two-view step between frames i < j whose shared tracks moved ``parallax`` px."""
-        known = self.step_lengths(i, j) if self.truth_until_map and self.step_lengths is not None else None
+        known = self._truth(i, j, self.truth_until_map)
         if known is not None and parallax > 0:
             self.length_per_px = known / parallax
         velocity = self.velocity() if known is None else None
@@ -60,8 +60,12 @@ class MapScale:
     def first_baseline(self, T: np.ndarray, i: int, j: int) -> np.ndarray:
         """``T`` (4, 4), frame j seen from keyframe i, with the true length of the first map's baseline where the
         input knows it (the scale every later map carries), else as it is."""
-        known = self.step_lengths(i, j) if self.first_map_waits and self.step_lengths is not None else None
+        known = self._truth(i, j, self.first_map_waits)
         return T if known is None else with_length(T, known)
+
+    def _truth(self, i: int, j: int, wanted: bool) -> float | None:
+        """The true distance (m) between frames i and j where it is ``wanted`` and the input knows it, else None."""
+        return self.step_lengths(i, j) if wanted and self.step_lengths is not None else None
 
     def map_started(self) -> None:
         """A map has started: later maps carry its scale."""
