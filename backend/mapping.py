@@ -23,7 +23,7 @@ Frames make no landmarks.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -35,6 +35,8 @@ from deepslam.geometry import vector_angle
 
 PNP_ITERATIONS = 200  # PnP RANSAC's iterations
 FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyframe (a hard constraint would need QR)
+INITIAL_VIEWS = 20  # a frame measured two-view while a map waits is adjusted with at most this many views ...
+INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length)
 
 
 @dataclass
@@ -346,6 +348,36 @@ def adjust_views(views: list[Keyframe], config: MapConfig, min_px: float) -> np.
     if len(trial.landmarks) < config.min_located or trial.adjust(ranged=len(views) - 1) is None:
         return None
     return views[-1].T_world_cam
+
+
+class InitialViews:
+    """The frames since the keyframe a map waits to start from, adjusted together with each new one: measured one
+    by one from a keyframe a few pixels away, their translations point degrees apart (a homography here, an
+    essential matrix there); together they agree.
+
+    Args:
+        config: the map's settings (its bundle adjustment and ``min_located``).
+    """
+
+    def __init__(self, config: MapConfig):
+        self.config = config
+        self.views: dict[int, Keyframe] = {}  # the frames kept as views, by index, in order
+
+    def adjust(self, first: Keyframe, current: Keyframe, estimate: Callable[[int], np.ndarray]) -> np.ndarray | None:
+        """The pose ``T_world_cam`` (4, 4) of ``current`` adjusted together with the keyframe ``first`` (held, with
+        ``current``'s distance from it) and up to ``INITIAL_VIEWS`` of the views, each at its latest ``estimate``
+        (``T_world_cam`` (4, 4) of a frame's index); None where they triangulate too few landmarks
+        (``adjust_views``)."""
+        earlier = [replace(view, T_world_cam=estimate(index)) for index, view in self.views.items()]
+        return adjust_views([first, *earlier[-INITIAL_VIEWS:], current], self.config, INITIAL_TRIANGULATION_PX)
+
+    def add(self, view: Keyframe) -> None:
+        """Keep ``view`` (a frame's confirmed pairs with the keyframe) for the frames after it."""
+        self.views[view.index] = view
+
+    def keep_after(self, keyframe: int | None) -> None:
+        """Keep only the views of frames after ``keyframe``; none where it is None (no map waits)."""
+        self.views = {} if keyframe is None else {i: view for i, view in self.views.items() if i > keyframe}
 
 
 def _direction_sigma_deg(

@@ -27,7 +27,8 @@ frames; once a map has started (where PnP finds no pose or no map holds the keyf
 step the map measured, and a lost frame goes on by that step (constant velocity): the pixels a step moves tracks
 depend on their depth, which has changed since the first baseline.
 While a map waits to start from the keyframe, a frame's two-view pose is adjusted together with the frames since
-the keyframe (``_initialising``): measured one by one over a few pixels of parallax, their directions scatter.
+the keyframe (``_initialising``, ``mapping.InitialViews``): measured one by one over a few pixels of parallax,
+their directions scatter.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from deepslam.backend import relpose
 from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.backend.keyframes import Decision, KeyframeEvidence, KeyframePolicy, MapLocation, Phase
-from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
+from deepslam.backend.mapping import InitialViews, Keyframe, LocalMap, project
 from deepslam.backend.scale import MapScale, StepLengths, with_length
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
@@ -56,9 +57,6 @@ ADJUSTED_AGREEMENT = (3.0, 0.5)  # ... if within this many degrees and this shar
 # the frames located in the map between keyframes, which the graph does not hold, no longer update it
 KEYFRAME_UPDATES = 3
 FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
-# a frame measured two-view while a map waits is adjusted with at most this many frames since the keyframe ...
-INITIAL_VIEWS = 20
-INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length)
 
 
 @dataclass(frozen=True)
@@ -184,8 +182,8 @@ class Odometry:
         # (keyframe, how the last frame measured against it in the map was located): map only
         self.location: tuple[int, MapLocation] | None = None
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
-        # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px, in order
-        self.waiting: dict[int, Keyframe] = {}
+        # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px
+        self.waiting = InitialViews(config.map)
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -305,7 +303,7 @@ class Odometry:
         decision, T = self._update_keyframes(measurement, rel, len(pairs))
         T, adjusted = self._adjust_located(k, kf, rel, T, (pairs, measured_points))
         self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
-        self.waiting = {i: view for i, view in self.waiting.items() if i > self.keyframe} if self._map_waits() else {}
+        self.waiting.keep_after(self.keyframe if self._map_waits() else None)
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
         pose = self.estimate(k)
@@ -370,23 +368,19 @@ class Odometry:
         self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: tuple[np.ndarray, np.ndarray]
     ) -> np.ndarray:
         """Frame k's pose from keyframe kf (4, 4) while a map waits to start from kf: its two-view pose ``T``
-        adjusted together with up to ``INITIAL_VIEWS`` frames since kf whose tracks moved ``min_parallax`` px from
-        it (``mapping.adjust_views``: kf held, frame k's distance from it kept), each with the pairs the front-end
-        confirmed with kf (``confirmed``: pairs (K, 2) and frame k's points (K, 2) of them). Frames measured one
-        by one from a keyframe a few pixels away point their translations degrees apart (a homography here, an
-        essential matrix there); together they agree. ``T`` where there is no map to wait for, the pose
-        is not a translation measured two-view, or the frames triangulate too few landmarks."""
+        adjusted together with the frames since kf whose tracks moved ``min_parallax`` px from it
+        (``InitialViews``), each with the pairs the front-end confirmed with kf (``confirmed``: pairs (K, 2) and
+        frame k's points (K, 2) of them). ``T`` where there is no map to wait for, the pose is not a translation
+        measured two-view, or the frames triangulate too few landmarks."""
         two_view = rel.model in ("homography", "essential") and not rel.rotation_only
         if kf != self.keyframe or not self._map_waits() or not two_view:
             return T
         origin, (pairs, points) = self.graph.pose(kf), confirmed
         first = self._keyframe(kf, origin)
         current = Keyframe(k, origin @ T, self.history[k][0].K, self.history[k][1].ids[pairs[:, 1]], points)
-        earlier = [replace(view, T_world_cam=self.estimate(i)) for i, view in self.waiting.items()]
-        views = [first, *earlier[-INITIAL_VIEWS:], current]
-        adjusted = adjust_views(views, self.config.map, INITIAL_TRIANGULATION_PX)
+        adjusted = self.waiting.adjust(first, current, self.estimate)
         if _median_motion(first, current, shared_tracks(first, current)) >= self.config.min_parallax:
-            self.waiting[k] = current  # a view for the frames after it
+            self.waiting.add(current)
         return T if adjusted is None else np.linalg.inv(origin) @ adjusted
 
     def _pose(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
