@@ -35,20 +35,20 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from functools import partial
-from typing import Callable, Iterator
+from typing import Iterator
 
 import numpy as np
 
 from deepslam.backend import relpose
-from deepslam.backend.config import MAX_TURN_OF_TRANSLATION, OdometryConfig
+from deepslam.backend.config import OdometryConfig
 from deepslam.backend.graph import PoseGraph, measurement_sigmas
 from deepslam.backend.keyframes import Decision, KeyframeEvidence, KeyframePolicy, MapLocation, Phase
 from deepslam.backend.mapping import InitialViews, Keyframe, LocalMap, project
-from deepslam.backend.scale import MapScale, StepLengths, with_length
+from deepslam.backend.scale import MapScale, PlaneScale, StepLengths, with_length
+from deepslam.backend.twoview import TwoView
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
-from deepslam.geometry import in_image, rotation_angle, vector_angle
+from deepslam.geometry import in_image, rotation_angle
 from deepslam.interrupts import checkpoint
 
 BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
@@ -56,7 +56,6 @@ ADJUSTED_AGREEMENT = (3.0, 0.5)  # ... if within this many degrees and this shar
 # ISAM2 updates (each one Gauss-Newton step) a keyframe located in the map adds to the graph once its factors are in:
 # the frames located in the map between keyframes, which the graph does not hold, no longer update it
 KEYFRAME_UPDATES = 3
-FALLBACK_METHODS = ("homography", "essential")  # the poses tried when the chosen one jumps (max_rotation_jump)
 
 
 @dataclass(frozen=True)
@@ -127,17 +126,6 @@ def _median_motion(a: Tracks | Keyframe, b: Tracks | Keyframe, pairs: np.ndarray
     return float(np.median(np.linalg.norm(b.points[pairs[:, 1]] - a.points[pairs[:, 0]], axis=1)))
 
 
-def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float]:
-    """Degrees between the pose ``rel`` measures (T_c1_c2, (4, 4)) and ``previous``, the estimate (4, 4) of the
-    frame before seen from the same camera 1 (consecutive frames barely move): rotation, then translation
-    direction (0 while that estimate has not moved); infinite for a failed pose."""
-    if not rel.ok:
-        return np.inf, np.inf
-    rotation = np.degrees(rotation_angle(rel.T_c1_c2[:3, :3].T @ previous[:3, :3]))
-    translation = np.degrees(vector_angle(rel.T_c1_c2[:3, 3], previous[:3, 3]))
-    return float(rotation), float(translation)
-
-
 class Odometry:
     """Feed frames in order with ``process``; ``poses`` holds the optimised trajectory so far.
 
@@ -172,9 +160,9 @@ class Odometry:
         self.graph: PoseGraph | None = None
         self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index
         self.frames = 0
-        self.plane_distance = config.plane_distance
-        self.last_translation: np.ndarray | None = None
-        self.plane_normal_world: np.ndarray | None = None  # unit normal (3,) of the dominant plane last measured
+        plane_lengths = config.scale in ("plane", "none")
+        self.two_view = TwoView(config.method, config.max_rotation_jump, plane_lengths)
+        self.plane = PlaneScale(config.plane_distance) if plane_lengths else None
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
         self.map = LocalMap(config.map) if config.scale == "map" else None
@@ -192,7 +180,7 @@ class Odometry:
         if self.config.scale == "map":
             pairs = shared_tracks(self.history[i][1], self.history[j][1])
             return self.scale.two_view(i, j, self._parallax(i, j, pairs))
-        return float(rel.t_over_d or 0.0) * self.plane_distance
+        return self.plane.length(rel)
 
     def _locate(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Frame k located in the map by PnP on the landmarks among the pairs the front-end confirms with keyframe
@@ -242,46 +230,14 @@ class Odometry:
         frame j's points of them (K, 2))."""
         tracks_i, frame_j = self.history[i][1], self.history[j][0]
         pairs, p2 = self._confirmed(i, j)
+        T_world_i = self.graph.pose(i)
+        previous = np.linalg.inv(T_world_i) @ self.estimate(j - 1)  # frame j - 1 seen from frame i
         p1 = tracks_i.points[pairs[:, 0]]
-        R_world_i = self.graph.pose(i)[:3, :3]
-        normal = R_world_i.T @ self.plane_normal_world if self.plane_normal_world is not None else None
-        estimate = partial(
-            relpose.estimate, p1, p2, frame_j.K, size=frame_j.shape, previous_t=self.last_translation,
-            previous_normal=normal,
-        )  # fmt: skip
-        rel = self._gated(estimate(self.config.method), estimate, i, j)
-        if rel.ok and self.config.scale in ("plane", "none") and rel.model == "essential":
-            plane = relpose.homography_pose(p1, p2, frame_j.K, previous_normal=normal)  # magnitude from the plane
-            rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
-        if rel.ok and rel.plane_normal is not None and not rel.rotation_only:
-            self.plane_normal_world = R_world_i @ rel.plane_normal
+        rel = self.two_view.measure(p1, p2, frame_j.K, frame_j.shape, T_world_i[:3, :3], previous)
         T = rel.T_c1_c2.copy()
         if rel.ok and not rel.rotation_only and rel.model != "static":
             T = with_length(T, self._step_length(i, j, rel))
         return rel, T, pairs, p2
-
-    def _gated(
-        self, rel: relpose.RelativePose, estimate: Callable[[str], relpose.RelativePose], i: int, j: int
-    ) -> relpose.RelativePose:
-        """``rel``, frame j's pose from frame i, unless it turns more than ``max_rotation_jump`` degrees away from
-        the estimate of frame j - 1 (consecutive frames barely move) and one of ``FALLBACK_METHODS`` (``estimate``
-        measures by a method's name) agrees with that estimate: then the one that agrees best."""
-        gate = self.config.max_rotation_jump
-        if not (gate and rel.ok):
-            return rel
-        previous = np.linalg.inv(self.graph.pose(i)) @ self.estimate(j - 1)  # frame j - 1 seen from frame i
-        if _turn(rel, previous)[0] <= gate:
-            return rel
-        turns = [(_turn(other, previous), other) for other in map(estimate, FALLBACK_METHODS)]
-        (rotation, translation), closest = min(turns, key=lambda turn: turn[0])
-        return closest if rotation <= gate and translation <= MAX_TURN_OF_TRANSLATION else rel
-
-    def _update_plane_distance(self, rel: relpose.RelativePose, T: np.ndarray) -> None:
-        """Carry the camera's distance to the dominant plane into the new frame: d2 = d1 - n . c2."""
-        if self.config.scale in ("plane", "none") and rel.ok and rel.plane_normal is not None:
-            distance = self.plane_distance - float(rel.plane_normal @ T[:3, 3])
-            if distance > 1e-3:
-                self.plane_distance = distance
 
     def process(self, image: np.ndarray, K: np.ndarray) -> FrameResult:
         """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe (in
@@ -435,7 +391,7 @@ class Odometry:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
             )
-            self.last_translation = T[:3, 3] if np.linalg.norm(T[:3, 3]) > 0 else self.last_translation
+            self.two_view.moved(T)
         else:
             last, velocity = self.estimate(k - 1), self.scale.velocity()
             T = np.linalg.inv(self.graph.pose(kf)) @ (last if velocity is None else last @ velocity)
@@ -505,8 +461,8 @@ class Odometry:
         plane's distance moves on to it where it was measured against the current one, and where a map located it
         (and it did not just start one), it joins that map, whose adjustment of it then joins the graph."""
         current = self.keyframe
-        if rel.ok and kf == current and not started:
-            self._update_plane_distance(rel, T)
+        if rel.ok and kf == current and not started and self.plane is not None:
+            self.plane.moved_on(rel, T)
         self.previous_keyframe, self.keyframe = current, k
         if rel.ok and not started and self._map_holds(kf):
             self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
@@ -557,7 +513,7 @@ class Odometry:
         ``T``, or None where it finds no translation."""
         tracks_kf, frame_k = self.history[kf][1], self.history[k][0]
         pairs, points = self._confirmed(kf, k)
-        rel = relpose.estimate(tracks_kf.points[pairs[:, 0]], points, frame_k.K, "essential", size=frame_k.shape)
+        rel = self.two_view.essential(tracks_kf.points[pairs[:, 0]], points, frame_k.K, frame_k.shape)
         if not rel.ok or rel.rotation_only:
             return None
         return with_length(rel.T_c1_c2, float(np.linalg.norm(T[:3, 3])))

@@ -9,6 +9,8 @@ from typing import Callable
 
 import numpy as np
 
+from deepslam.backend.relpose import RelativePose
+
 MOTION_STEPS = 5  # the camera's speed: the median length of the last this many steps the map measured
 
 StepLengths = Callable[[int, int], float | None]
@@ -88,3 +90,28 @@ class MapScale:
         if not self.steps:
             return None
         return with_length(self.steps[-1], float(np.median([np.linalg.norm(step[:3, 3]) for step in self.steps])))
+
+
+class PlaneScale:
+    """Metric lengths of two-view steps from the camera's distance to the dominant plane (``scale="plane"``; with
+    ``"none"`` that distance is the unit): a homography's decomposition measures t / d, and the distance moves on
+    with every keyframe, d2 = d1 - n . t.
+
+    Args:
+        distance: the first camera's distance (m) to the dominant plane.
+    """
+
+    def __init__(self, distance: float):
+        self.distance = distance
+
+    def length(self, rel: RelativePose) -> float:
+        """The metric length of the step ``rel`` measured (0 where it carries no t / d)."""
+        return float(rel.t_over_d or 0.0) * self.distance
+
+    def moved_on(self, rel: RelativePose, T: np.ndarray) -> None:
+        """The next keyframe, measured from this one as ``rel`` and ``T`` (4, 4, metric), takes over: its distance
+        to the plane is d - n . t (kept where the pose has no plane, or where that would not be positive)."""
+        if rel.ok and rel.plane_normal is not None:
+            distance = self.distance - float(rel.plane_normal @ T[:3, 3])
+            if distance > 1e-3:
+                self.distance = distance

@@ -12,6 +12,7 @@ from deepslam.backend.evaluation.sweep import SweepConfig, matrix_lines, pipelin
 from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
 from deepslam.backend.graph import PoseGraph
 from deepslam.backend.pipeline import Pipeline
+from deepslam.backend.scale import PlaneScale
 from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
 from deepslam.frontend.tracking import OracleTracker, Truth, make_tracker
@@ -326,6 +327,22 @@ def test_plane_scale_needs_no_ground_truth_steps():
     assert drift.ate_rmse(output.estimate, output.truth) < 1e-3
     with pytest.raises(InputError, match="distance"):
         Pipeline(PipelineConfig(odometry=OdometryConfig(scale="plane")))
+
+
+def test_plane_scale_moves_the_distance_on_by_the_step_towards_the_plane():
+    plane = PlaneScale(2.0)
+    step = relpose.RelativePose(
+        np.eye(4), "homography", np.ones(20, bool), t_over_d=0.25, plane_normal=np.array([0, 0, 1.0])
+    )
+    assert plane.length(step) == pytest.approx(0.5)
+    towards = np.eye(4)
+    towards[:3, 3] = [0.1, 0.0, 0.5]  # half a metre towards the wall ahead
+    plane.moved_on(step, towards)
+    assert plane.distance == pytest.approx(1.5)
+    through = towards.copy()
+    through[2, 3] = 2.0  # would pass the wall: the distance is kept
+    plane.moved_on(step, through)
+    assert plane.distance == pytest.approx(1.5)
 
 
 def test_lost_frames_are_flagged_and_tracking_reinitialises():
