@@ -131,6 +131,21 @@ class LocalMap:
     def started(self) -> bool:
         return bool(self.landmarks)
 
+    def holds(self, index: int) -> bool:
+        """Whether the map has started and frame ``index`` is a keyframe of its window."""
+        return self.started and any(keyframe.index == index for keyframe in self.keyframes)
+
+    def pose(self, index: int) -> np.ndarray:
+        """The pose ``T_world_cam`` (4, 4) of the window's keyframe ``index``."""
+        return next(keyframe.T_world_cam for keyframe in self.keyframes if keyframe.index == index)
+
+    def baseline_px(self, location: Location, K: np.ndarray, index: int) -> float:
+        """The angle (px: radians x focal length, K (3, 3)) keyframe ``index``'s centre and the centre of a frame
+        located at ``location`` (with a pose) span at the median depth of the landmarks it was given."""
+        depth = np.median(project(location.T_world_cam, K, self.points_of(location.ids))[1])
+        length = np.linalg.norm((np.linalg.inv(self.pose(index)) @ location.T_world_cam)[:3, 3])
+        return float(length / max(depth, 1e-9) * K[0, 0])
+
     def points(self) -> tuple[np.ndarray, np.ndarray]:
         """Landmark ids (M,) and world points (M, 3)."""
         ids = np.fromiter(self.landmarks, np.int64, len(self.landmarks))

@@ -197,10 +197,8 @@ class Odometry:
             self.location = (kf, MapLocation(located, first, 0.0))
             failed = relpose.RelativePose(np.eye(4), "failed", location.inliers, reason=location.reason)
             return failed, np.eye(4), pairs, points
-        T = np.linalg.inv(self._map_pose(kf)) @ location.T_world_cam
-        depth = np.median(project(location.T_world_cam, frame_k.K, self.map.points_of(location.ids))[1])
-        baseline_px = float(np.linalg.norm(T[:3, 3]) / max(depth, 1e-9) * frame_k.K[0, 0])
-        self.location = (kf, MapLocation(located, first, baseline_px))
+        T = np.linalg.inv(self.map.pose(kf)) @ location.T_world_cam
+        self.location = (kf, MapLocation(located, first, self.map.baseline_px(location, frame_k.K, kf)))
         return relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points
 
     def _located_against(self, kf: int) -> MapLocation | None:
@@ -213,17 +211,13 @@ class Odometry:
         tracks_i, tracks_j = self.history[i][1], self.history[j][1]
         return self.tracker.confirm(tracks_i, tracks_j, shared_tracks(tracks_i, tracks_j))
 
-    def _map_pose(self, index: int) -> np.ndarray:
-        """The map's pose (4, 4) of a keyframe it holds."""
-        return next(keyframe.T_world_cam for keyframe in self.map.keyframes if keyframe.index == index)
-
     def _in_map(self, kf: int, T_world_cam: np.ndarray) -> np.ndarray:
         """A pose of the graph's (4, 4) in the map's world, placed by keyframe kf, which both hold (the graph's
         world and the map's drift apart)."""
-        return self._map_pose(kf) @ np.linalg.inv(self.graph.pose(kf)) @ T_world_cam
+        return self.map.pose(kf) @ np.linalg.inv(self.graph.pose(kf)) @ T_world_cam
 
     def _map_holds(self, index: int) -> bool:
-        return self.map is not None and self.map.started and any(k.index == index for k in self.map.keyframes)
+        return self.map is not None and self.map.holds(index)
 
     def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
         """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences (K, 2),
@@ -288,9 +282,9 @@ class Odometry:
         if not (self.config.map.adjust_frames and rel.model == "pnp" and k in self.measured):
             return T, False
         (frame_k, tracks_k), (pairs, points) = self.history[k], located
-        view = Keyframe(k, self._map_pose(kf) @ T, frame_k.K, tracks_k.ids[pairs[rel.inliers, 1]], points[rel.inliers])
+        view = Keyframe(k, self.map.pose(kf) @ T, frame_k.K, tracks_k.ids[pairs[rel.inliers, 1]], points[rel.inliers])
         pose = self.map.observe(view)  # moves keyframe kf too
-        adjusted = np.linalg.inv(self._map_pose(kf)) @ pose
+        adjusted = np.linalg.inv(self.map.pose(kf)) @ pose
         self.measured[k] = replace(self.measured[k], T=adjusted)
         return adjusted, True
 
@@ -465,7 +459,7 @@ class Odometry:
             self.plane.moved_on(rel, T)
         self.previous_keyframe, self.keyframe = current, k
         if rel.ok and not started and self._map_holds(kf):
-            self.map.add(self._keyframe(k, self._map_pose(kf) @ T))
+            self.map.add(self._keyframe(k, self.map.pose(kf) @ T))
             self._add_adjusted(k)
 
     def _evidence(self, k: int, kf: int, confirmed: int, started: bool) -> KeyframeEvidence:

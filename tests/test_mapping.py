@@ -42,6 +42,19 @@ def _sideways(x):
     return T
 
 
+def test_a_map_tells_its_keyframes_poses_and_a_located_frames_baseline(rng):
+    world = _world(rng, nearest=3.0, farthest=3.0)  # every point 3 m ahead
+    local_map = LocalMap(MapConfig())
+    assert not local_map.holds(0)  # not started
+    local_map.start(_keyframe(0, np.eye(4), world, rng, noise=0.0), _keyframe(4, _sideways(0.6), world, rng, noise=0.0))
+    assert local_map.holds(0) and local_map.holds(4) and not local_map.holds(2)
+    assert local_map.pose(4)[0, 3] == pytest.approx(0.6, abs=1e-3)
+    seen = _keyframe(5, _sideways(0.9), world, rng, noise=0.0)
+    location = local_map.locate(seen.ids, seen.points, K, _sideways(0.8))
+    # 0.3 m sideways of keyframe 4 at 3 m: 0.1 rad, times the focal length
+    assert local_map.baseline_px(location, K, 4) == pytest.approx(0.1 * K[0, 0], rel=0.01)
+
+
 def test_a_map_triangulates_locates_and_keeps_its_scale_through_bundle_adjustment(rng):
     world = _world(rng)
     local_map = LocalMap(MapConfig(window=4))
