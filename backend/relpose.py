@@ -347,6 +347,12 @@ def pycolmap_pose(
     )
 
 
+def _opencv_reason(error: cv2.error) -> str:
+    """Why OpenCV failed, on one line: its own words without the source file and line it names."""
+    words = " ".join(line.lstrip("> ").strip() for line in str(getattr(error, "err", "") or "").splitlines())
+    return f"OpenCV could not fit a model to the pairs ({words or 'it gave no reason'})"
+
+
 def _failed(count: int, reason: str) -> RelativePose:
     return RelativePose(np.eye(4), "failed", np.zeros(count, bool), reason=reason)
 
@@ -407,7 +413,7 @@ def estimate(
     try:
         pose = _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal)
     except cv2.error as error:  # USAC asserts on some degenerate samples instead of failing softly
-        return _failed(len(p1), f"OpenCV could not fit a model: {str(error).strip().splitlines()[-1]}")
+        return _failed(len(p1), _opencv_reason(error))
     if pose.ok and pose.inlier_ratio < MIN_INLIER_RATIO:
         return _failed(len(p1), f"the {pose.model} explains {pose.inlier_ratio:.0%} of the matches, "
                                 f"below {MIN_INLIER_RATIO:.0%}")  # fmt: skip

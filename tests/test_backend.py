@@ -172,6 +172,17 @@ def test_pycolmap_agrees_with_opencv(rng):
     assert _errors(ours.T_c1_c2, theirs.T_c1_c2)[0] < 0.5
 
 
+def test_a_fit_opencv_refuses_gives_a_failed_pose_with_its_reason_on_one_line(rng, monkeypatch):
+    def refused(p1, p2, *args):  # OpenCV asserts on some samples instead of failing softly
+        return cv2.findHomography(p1[:3], p2[:3], cv2.RANSAC)
+
+    monkeypatch.setattr(relpose, "_estimate", refused)
+    p1, p2 = _views(rng, True)
+    result = relpose.estimate(p1, p2, K)
+    assert result.model == "failed" and result.reason.startswith("OpenCV could not fit a model")
+    assert "4 corresponding point sets" in result.reason and "\n" not in result.reason and ".cpp" not in result.reason
+
+
 def test_vector_angle_broadcasts_and_is_zero_for_a_vector_without_length():
     normals = np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 1.0], [0.0, -3.0, 0.0]])
     np.testing.assert_allclose(np.degrees(vector_angle(normals, [0.0, 0.0, 1.0])), [0.0, 45.0, 90.0], atol=1e-12)
