@@ -186,7 +186,9 @@ def _print_summary(summary: dict, scale: str, command: str = "run") -> None:
     if "track_error_px" in summary:
         print("  (*_error_px: medians against the simulator's truth)")
     drifted = summary.get("scale_drift", 1.0)
-    if not 1 / MAX_SCALE_DRIFT <= drifted <= MAX_SCALE_DRIFT:
+    if drifted != drifted:  # NaN
+        print("  (scale_drift: nan, as it needs 8 frames and a camera that moved in the first and last quarter)")
+    elif not 1 / MAX_SCALE_DRIFT <= drifted <= MAX_SCALE_DRIFT:
         log.warning(
             f"deepslam: warning: the estimate's scale drifted {drifted:.2f}x against the truth (the last quarter's "
             "path over the first's): its later steps are measured at another scale than its first"

@@ -67,7 +67,9 @@ def test_run_and_drift_end_to_end(tmp_path, capsys):
     assert (tmp_path / "drift" / "drift.txt").read_bytes() == written
 
 
-@pytest.mark.parametrize("scale_drift, warned", [(1.3, False), (0.6, False), (2.5, True), (0.4, True)])
+@pytest.mark.parametrize(
+    "scale_drift, warned", [(1.3, False), (0.6, False), (2.5, True), (0.4, True), (float("nan"), False)]
+)
 def test_a_summary_warns_of_a_scale_that_drifted_beyond_twice(scale_drift, warned, capsys, caplog):
     from deepslam.cli import _print_summary, log
 
@@ -76,7 +78,10 @@ def test_a_summary_warns_of_a_scale_that_drifted_beyond_twice(scale_drift, warne
         _print_summary({"ate_se3": 0.1, "ate_sim3": 0.05, "scale_drift": scale_drift}, "map")
     finally:
         log.removeHandler(caplog.handler)
-    assert f"scale_drift          {scale_drift:.4f}" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"scale_drift          {scale_drift:.4f}" in out and ("needs 8 frames" in out) == (
+        scale_drift != scale_drift
+    )
     assert ("scale drifted" in caplog.text) == warned and (f"{scale_drift:.2f}x" in caplog.text) == warned
 
 
