@@ -121,6 +121,11 @@ class Scenario:
         normal, offset = self.world.dominant_plane
         return float(abs(offset - normal @ self.trajectory.poses[0][:3, 3]))
 
+    def passes_through(self) -> int | None:
+        """The first frame the camera reaches by passing through one of the world's surfaces (a wall, a box),
+        or None where its path keeps in front of them all."""
+        return self.world.passed_through(self.trajectory.poses[:, :3, 3])
+
     def __len__(self) -> int:
         return self.config.frames
 

@@ -44,6 +44,16 @@ class Surface:
         n = np.cross(self.axis_u, self.axis_v)
         return n / np.linalg.norm(n)
 
+    def crossed(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Which of the straight steps from ``start`` to ``end`` (N, 3 each, m) pass through this rectangle (N,)
+        bool: from one side of its plane to the other, within its edges."""
+        side_start, side_end = (start - self.origin) @ self.normal, (end - self.origin) @ self.normal
+        crossing = (side_start > 0) != (side_end > 0)
+        share = side_start / np.where(crossing, side_start - side_end, 1.0)  # where along the step the plane lies
+        point = start + share[:, None] * (end - start) - self.origin
+        u, v = (point @ axis / (axis @ axis) for axis in (self.axis_u, self.axis_v))
+        return crossing & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+
 
 @dataclass
 class Frame:
@@ -70,6 +80,13 @@ class World:
     def texture(self) -> str:
         """The name of the main surface's texture (the plane's wall, the room's back wall)."""
         return self.surfaces[0].texture_name
+
+    def passed_through(self, centres: np.ndarray) -> int | None:
+        """The first of a camera's positions ``centres`` (N, 3, in order) it reached by passing through one of the
+        world's surfaces (its index), or None where the path keeps to one side of every surface."""
+        steps = [surface.crossed(centres[:-1], centres[1:]) for surface in self.surfaces]
+        through = np.nonzero(np.any(steps, axis=0))[0] if steps else np.zeros(0, np.int64)
+        return int(through[0]) + 1 if len(through) else None
 
     @property
     def corner_poor(self) -> bool:

@@ -245,3 +245,24 @@ def test_the_cluttered_world_has_depth_and_no_dominant_plane_and_the_forward_pat
     assert ahead @ looking > 0.9 * np.linalg.norm(ahead)  # it moves the way it looks
     with pytest.raises(InputError, match="no dominant plane"):
         scenario.plane_distance()
+
+
+def test_a_path_through_a_wall_is_found_where_it_passes_through_and_a_run_warns_of_it(caplog):
+    from deepslam.backend.config import OdometryConfig
+    from deepslam.backend.evaluation.runs import simulate
+    from deepslam.frontend.config import TrackerConfig
+    from deepslam.sim.scenario import Scenario, ScenarioConfig
+
+    wall = Scenario(ScenarioConfig(world="plane")).world.surfaces[0]
+    before, behind = wall.origin + 0.5 * (wall.axis_u + wall.axis_v) + np.outer([1.0, -1.0], wall.normal)
+    beside = before + 10 * wall.axis_u  # the same step beyond the wall's edge
+    crossed = wall.crossed(np.stack([before, beside]), np.stack([behind, beside - 2 * wall.normal]))
+    assert crossed.tolist() == [True, False]
+    # forward at 0.05 m a frame from 2 m before the wall: through it at frame 40 (on it) or 41
+    assert Scenario(ScenarioConfig(world="plane", trajectory="forward")).passes_through() in (40, 41)
+    assert Scenario(ScenarioConfig(world="plane", trajectory="forward", frames=40)).passes_through() is None
+    assert Scenario(ScenarioConfig(world="room", trajectory="circle")).passes_through() is None
+    caplog.set_level("WARNING")
+    short = ScenarioConfig(world="plane", trajectory="forward", frames=45, size=(48, 64))
+    simulate(short, TrackerConfig("oracle"), OdometryConfig(scale="map"), progress=False)
+    assert "passes through a surface of the plane world at frame 4" in caplog.text
