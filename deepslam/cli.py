@@ -335,7 +335,7 @@ def _train_commands(commands, detailed: bool) -> None:
     )
     export.add_argument("checkpoint", type=Path, help="a training checkpoint, e.g. runs/magicpoint_S_ft/best.pt")
     export.add_argument("out", type=Path, help="where to write the weights, e.g. frontend/weights/magicpoint_S.pt")
-    export.set_defaults(func=_export)
+    export.set_defaults(func=_export, parser=export)
 
 
 def _pipeline_commands(commands) -> None:
@@ -530,7 +530,9 @@ def main(argv: list[str] | None = None) -> int:
     143 on SIGTERM."""
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # named by the command they were given to
+        getattr(args, "parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     _configure_logging(args)
     signal.signal(signal.SIGTERM, _terminate)
     import cv2

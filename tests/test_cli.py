@@ -85,6 +85,19 @@ def test_a_summary_warns_of_a_scale_that_drifted_beyond_twice(scale_drift, warne
     assert ("scale drifted" in caplog.text) == warned and (f"{scale_drift:.2f}x" in caplog.text) == warned
 
 
+@pytest.mark.parametrize(
+    "argv, command",
+    [(["run", "--frmes", "3"], "deepslam run"), (["replay", "a.mcap", "--frames", "3"], "deepslam replay"),
+     (["train", "export", "a.pt", "b.pt", "--fast"], "deepslam train export"), (["--fast", "run"], "deepslam run")],
+)  # fmt: skip
+def test_an_unknown_option_is_named_with_the_command_it_was_given_to(argv, command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    error = capsys.readouterr().err
+    assert exit_info.value.code == 2 and error.count("\n") == 1
+    assert error.startswith(f"{command}: error: unrecognized arguments: ") and f"see {command} --help" in error
+
+
 def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, capsys):
     log, folder = str(tmp_path / "r.mcap"), str(tmp_path / "eval")
     clip = tmp_path / "clip.mp4"
