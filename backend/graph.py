@@ -22,6 +22,8 @@ from deepslam.backend.config import GraphConfig
 from deepslam.errors import InputError
 
 RESTART_SIGMAS = np.array([1e-3] * 3 + [1e-2] * 3)  # rad, m: how firmly a restarted window holds its poses
+# what gtsam's fixed-lag smoother says where its marginalisation fails on a sound graph (then the window restarts)
+MARGINALISATION_FAILURES = ("Indeterminate linear system", "remove variables from the variable index that are not")
 
 
 def measurement_sigmas(
@@ -133,8 +135,8 @@ class PoseGraph:
             window = dict(self.solver.timestamps())
             try:
                 self.solver.update(self._new_factors, self._new_values, timestamps)
-            except RuntimeError as error:
-                if "Indeterminate" not in str(error):
+            except (RuntimeError, ValueError) as error:
+                if not any(words in str(error) for words in MARGINALISATION_FAILURES):
                     raise
                 self._restart(window, timestamps)
             estimate = self.solver.calculateEstimate()  # the window only: a few dozen poses
@@ -144,7 +146,8 @@ class PoseGraph:
 
     def _restart(self, window: dict[int, float], timestamps: gtsam.FixedLagSmootherKeyTimestampMap) -> None:
         """A new fixed-lag smoother for one that failed to fold the new factors in: gtsam's marginalisation can
-        raise ``IndeterminateSystemException`` on a graph that is not indeterminate. The poses of the ``window``
+        raise ``IndeterminateSystemException`` on a graph that is not indeterminate, or fail to remove the variables
+        it marginalises (``MARGINALISATION_FAILURES``). The poses of the ``window``
         (key -> time last used) start it at their latest estimates, each held by a prior of
         ``RESTART_SIGMAS``; then the new factors and values follow as they would have."""
         params = self.solver.params()

@@ -555,7 +555,14 @@ def _project(T_world_cam, X):
     return project(transform(invert(T_world_cam), X), K)[0]
 
 
-def test_a_window_whose_marginalisation_fails_starts_again_from_its_estimates():
+@pytest.mark.parametrize(
+    "failure",
+    [
+        RuntimeError("Indeterminate linear system detected while working near variable 8"),
+        ValueError("Asking to remove variables from the variable index that are not unused"),
+    ],
+)
+def test_a_window_whose_marginalisation_fails_starts_again_from_its_estimates(failure):
     graph = PoseGraph(np.eye(4), GraphConfig(window=5))
     step = pose(np.zeros(3), np.array([1.0, 0.0, 0.0]))
     sigmas = np.array([0.01] * 3 + [0.05] * 3)
@@ -569,7 +576,7 @@ def test_a_window_whose_marginalisation_fails_starts_again_from_its_estimates():
             self.solver = solver
 
         def update(self, *args):
-            raise RuntimeError("Indeterminate linear system detected while working near variable 8")
+            raise failure
 
         def __getattr__(self, name):
             return getattr(self.solver, name)
