@@ -4,16 +4,17 @@ Every frame is measured against the current keyframe (a wide baseline: frame-to-
 pixel or two, too little for H or E), with an extra factor to the keyframe before it when they still
 share tracks; a frame whose median track motion since the keyframe passes ``keyframe_parallax`` pixels,
 or that shares too few tracks with it (or too few the front-end confirms: ``Tracker.confirm``), becomes the
-next keyframe. A measured pose that turns more than ``max_rotation_jump`` degrees away from the previous
-frame's estimate gives way to the homography's or the essential matrix's pose where that one agrees with it.
+next keyframe (``keyframes.KeyframePolicy``). Two-view poses come from ``twoview.TwoView``: one that turns more
+than ``max_rotation_jump`` degrees away from the previous frame's estimate gives way to the homography's or the
+essential matrix's pose where that one agrees with it.
 
 Frames come from any source (a camera, a simulator or a replayed log) as images with their K; the odometry
 needs no simulator. Monocular translation has no scale: ``scale="gt"`` takes each step's length from ground
 truth that the caller passes in as ``step_lengths`` (the usual convention of monocular VO evaluation);
-``scale="plane"`` keeps metric scale without
-ground truth from a known initial distance to the dominant plane (like a known camera height), which
-homography decompositions (t / d) carry from frame to frame; ``scale="none"`` does the same with that
-distance taken as the unit of length: the trajectory up to scale.
+``scale="plane"`` keeps metric scale without ground truth from a known initial distance to the dominant plane
+(like a known camera height), which homography decompositions (t / d) carry from keyframe to keyframe
+(``scale.PlaneScale``); ``scale="none"`` does the same with that distance taken as the unit of length: the
+trajectory up to scale.
 
 ``scale="map"`` needs no plane: once two keyframes triangulate enough landmarks (``deepslam.backend.mapping``),
 each frame is located in that local map by PnP against the current keyframe's landmarks (which the front-end
