@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import logging
+import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
@@ -26,8 +26,6 @@ from deepslam.interrupts import held_signals
 from deepslam.logs.frames import Correspondences, FrameDiagnostics, LogFrame
 from deepslam.progress import progress_bar
 from deepslam.sim.scenario import Scenario, ScenarioConfig
-
-logger = logging.getLogger(__name__)
 
 
 def simulated_frames(scenario: Scenario) -> Iterator[TrueFrame]:
@@ -273,11 +271,11 @@ def simulate(
     scenario = Scenario(scenario_config)
     through = scenario.passes_through()
     if through is not None:
-        logger.warning(
-            f"deepslam: warning: the camera passes through a surface of the {scenario_config.world} world at frame "
-            f"{through} of {scenario_config.frames} ({scenario_config.trajectory}, seed {scenario_config.seed}): "
-            "from there on it sees the world from behind (fewer --frames, a lower --speed or another path keep it "
-            "in front)"
+        warnings.warn(  # said once a command however many runs meet it (deepslam.cli)
+            f"the camera passes through a surface of the {scenario_config.world} world at frame {through} of "
+            f"{scenario_config.frames} ({scenario_config.trajectory}, seed {scenario_config.seed}): from there on "
+            "it sees the world from behind (fewer --frames, a lower --speed or another path keep it in front)",
+            stacklevel=2,
         )
     if odometry_config.scale == "plane" and odometry_config.plane_distance is None:
         odometry_config = replace(odometry_config, plane_distance=scenario.plane_distance())
