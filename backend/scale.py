@@ -1,5 +1,6 @@
-"""Where a two-view step's metric length comes from with a local map (``scale="map"``), and the camera's motion as
-the map measures it. Monocular geometry gives a step's direction only; the odometry asks ``MapScale`` how long it
+"""Where a two-view step's metric length comes from: with a local map (``scale="map"``, ``MapScale``, which also
+keeps the camera's motion as the map measures it) or from the distance to the dominant plane (``scale="plane"`` and
+``"none"``, ``PlaneScale``). Monocular geometry gives a step's direction only; the odometry asks these how long it
 is."""
 
 from __future__ import annotations

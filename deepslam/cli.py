@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import sys
@@ -186,7 +187,7 @@ def _print_summary(summary: dict, scale: str, command: str = "run") -> None:
     if "track_error_px" in summary:
         print("  (*_error_px: medians against the simulator's truth)")
     drifted = summary.get("scale_drift", 1.0)
-    if drifted != drifted:  # NaN
+    if math.isnan(drifted):
         print("  (scale_drift: nan, as it needs 8 frames and a camera that moved in the first and last quarter)")
     elif not 1 / MAX_SCALE_DRIFT <= drifted <= MAX_SCALE_DRIFT:
         log.warning(

@@ -44,15 +44,20 @@ class Surface:
         n = np.cross(self.axis_u, self.axis_v)
         return n / np.linalg.norm(n)
 
+    def within(self, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rectangle's coordinates u and v (each 0-1 across it) of points in its plane, given as their
+        ``offset`` (..., 3) from its origin, and which of them lie within its edges (...) bool."""
+        u = offset @ self.axis_u / (self.axis_u @ self.axis_u)
+        v = offset @ self.axis_v / (self.axis_v @ self.axis_v)
+        return u, v, (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+
     def crossed(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """Which of the straight steps from ``start`` to ``end`` (N, 3 each, m) pass through this rectangle (N,)
         bool: from one side of its plane to the other, within its edges."""
         side_start, side_end = (start - self.origin) @ self.normal, (end - self.origin) @ self.normal
         crossing = (side_start > 0) != (side_end > 0)
         share = side_start / np.where(crossing, side_start - side_end, 1.0)  # where along the step the plane lies
-        point = start + share[:, None] * (end - start) - self.origin
-        u, v = (point @ axis / (axis @ axis) for axis in (self.axis_u, self.axis_v))
-        return crossing & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        return crossing & self.within(start + share[:, None] * (end - start) - self.origin)[2]
 
 
 @dataclass
@@ -116,10 +121,8 @@ class World:
             n = surface.normal
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = ((surface.origin - centre) @ n) / (rays_world @ n)
-            hit = centre + rays_world * t[..., None] - surface.origin
-            u = hit @ surface.axis_u / (surface.axis_u @ surface.axis_u)
-            v = hit @ surface.axis_v / (surface.axis_v @ surface.axis_v)
-            mask = (t > 1e-3) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1) & (t < depth)
+            u, v, within = surface.within(centre + rays_world * t[..., None] - surface.origin)
+            mask = (t > 1e-3) & within & (t < depth)
             rows, cols = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
             if not len(rows):
                 continue
