@@ -402,6 +402,16 @@ def test_a_pose_that_turns_away_from_the_frame_before_gives_way_to_a_model_that_
     assert (error < 0.5) if kept else (error > 10)
 
 
+def test_a_sweep_summarises_the_runs_whose_limit_adjusted_nothing_without_them():
+    def run(ate, limit):
+        return {"ate_se3": ate, "limit_ate_se3": limit, "path_length": 3.0, "scale_drift": 1.0, "corner_poor": False,
+                "lost_frames": 0}  # fmt: skip
+
+    row = {"frontend": "magic", "noise": 0.0, "lighting": 0.0, "runs": [run(0.02, 0.01), run(0.03, 0.0)]}
+    summary = summary_lines([row])[-1].split()
+    assert summary[:4] == ["magic", "0.00", "0.00", "2"] and float(summary[6]) == pytest.approx(2.0)
+
+
 def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apart(tmp_path):
     config = SweepConfig(
         worlds=("plane",), trajectories=("circle",), frontends=("oracle",), noise=(0.0, 0.5), lighting=(0.0,),

@@ -7,7 +7,7 @@ import pytest
 
 from deepslam.backend.config import PipelineConfig
 from deepslam.backend.evaluation.consistency import CONSISTENT_PX, TrackObservations, consistent_share
-from deepslam.backend.evaluation.limit import batch_adjust
+from deepslam.backend.evaluation.limit import batch_adjust, over_limit
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.mapping import project
 from deepslam.frontend.config import TrackerConfig
@@ -96,6 +96,7 @@ def test_a_rotation_gives_the_limit_no_track_to_adjust():
         poses.append(T)
     limit = batch_adjust(_observed(poses, _scene(), K, noise=0.3))
     assert limit.tracks == 0 and np.allclose(limit.poses, np.stack(poses))
+    assert limit.ate_se3 == 0 and np.isnan(over_limit(0.01, limit.ate_se3))  # no limit, not a division by zero
 
 
 def test_a_run_drifts_more_than_the_limit_of_its_own_tracks():

@@ -11,7 +11,7 @@ import numpy as np
 from deepslam.backend import drift
 from deepslam.backend.evaluation.config import DriftConfig
 from deepslam.backend.evaluation.consistency import TrackObservations
-from deepslam.backend.evaluation.limit import batch_adjust
+from deepslam.backend.evaluation.limit import batch_adjust, over_limit
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.results import Result
@@ -64,8 +64,8 @@ def analyse(
             "lost_frames": -1 if lost is None else lost,
         }
         if limit:
-            best = batch_adjust(track_observations(path)).ate_se3
-            results[str(path)] |= {"limit_ate_se3": best, "ate_over_limit": results[str(path)]["ate_se3"] / best}
+            best, figures = batch_adjust(track_observations(path)).ate_se3, results[str(path)]
+            figures |= {"limit_ate_se3": best, "ate_over_limit": over_limit(figures["ate_se3"], best)}
     return DriftComparison(results, delta)
 
 

@@ -79,6 +79,12 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
     return Limit(poses, used, len(landmarks), drift.ate_rmse(poses, truth))
 
 
+def over_limit(ate_se3: float, limit_ate_se3: float) -> float:
+    """A run's ATE SE3 over its limit's; NaN where the limit is 0 or unknown (its tracks made no landmark, as
+    when the camera only turns, and the adjustment left the truth as it was)."""
+    return ate_se3 / limit_ate_se3 if limit_ate_se3 > 0 else float("nan")
+
+
 def _first_baseline(truth: np.ndarray, points: np.ndarray, focal: float, min_px: float) -> int | None:
     """The first frame whose true distance from frame 0 spans ``min_px`` (radians x ``focal``) at the median
     depth of the ``points`` (M, 3) in frame 0, as a map's first baseline must; the farthest frame from frame 0

@@ -13,7 +13,7 @@ import numpy as np
 from deepslam.backend import drift
 from deepslam.backend.config import OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.consistency import TrackObservations, consistent_share
-from deepslam.backend.evaluation.limit import Limit, batch_adjust
+from deepslam.backend.evaluation.limit import Limit, batch_adjust, over_limit
 from deepslam.backend.evaluation.truth import GroundTruth, TrueFrame, run_pipeline
 from deepslam.backend.odometry import FrameResult
 from deepslam.backend.pipeline import Pipeline
@@ -145,7 +145,7 @@ class RunOutput:
         best = self.limit() if limit and "ate_se3" in figures else None
         if best is not None:
             figures["limit_ate_se3"] = best.ate_se3
-            figures["ate_over_limit"] = figures["ate_se3"] / max(best.ate_se3, 1e-12)
+            figures["ate_over_limit"] = over_limit(figures["ate_se3"], best.ate_se3)
         return figures
 
 

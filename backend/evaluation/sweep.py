@@ -15,6 +15,7 @@ import numpy as np
 
 from deepslam.backend.config import OdometryConfig
 from deepslam.backend.evaluation.config import SweepConfig
+from deepslam.backend.evaluation.limit import over_limit
 from deepslam.backend.evaluation.runs import simulate
 from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
@@ -117,11 +118,13 @@ def _row(cell: tuple, runs: list[dict], config: SweepConfig) -> dict:
 
 
 def _shares(runs: list[dict]) -> dict[str, list[float]]:
-    """Each run's ATE as % of its path, |log scale drift| and ATE over its limit (``limit``)."""
+    """Each run's ATE as % of its path, |log scale drift| and ATE over its limit (``limit``; of the runs that
+    have one)."""
+    ratios = [over_limit(r["ate_se3"], r["limit_ate_se3"]) for r in runs]
     return {
         "ate_pct": [100 * r["ate_se3"] / r["path_length"] for r in runs],
         "log_scale_drift": [abs(np.log(r["scale_drift"])) for r in runs],
-        "ate_over_limit": [r["ate_se3"] / r["limit_ate_se3"] for r in runs],
+        "ate_over_limit": [ratio for ratio in ratios if np.isfinite(ratio)],
     }
 
 
