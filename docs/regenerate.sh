@@ -29,6 +29,8 @@ deepslam eval pipeline --out docs/eval/pipeline_paths_lighting --jobs "$JOBS" --
   --trajectories figure8 line random --lighting 0.3
 deepslam eval pipeline --out docs/eval/pipeline_S --jobs "$JOBS" --worlds plane room --trajectories circle --lighting 0 \
   --frontends magic --detector S
+deepslam eval pipeline --out docs/eval/pipeline_scale1 --jobs "$JOBS" --worlds plane room --trajectories circle \
+  --lighting 0 --frontends magic --detector-scale 1
 # the local map (--scale map) in all three worlds, beside the same runs with true step lengths, 3 seeds
 MAP="--worlds plane room clutter --trajectories circle forward --noise 0 0.5 --lighting 0 --seeds 3"
 deepslam eval pipeline --out docs/eval/pipeline_map --jobs "$JOBS" $MAP --scale map

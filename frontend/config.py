@@ -49,8 +49,8 @@ class TrackerConfig:
     """A front-end and its options. The magic front-end runs MagicPoint at the evaluation threshold 0.001
     with at most ``POINT_BUDGET`` points (the oracle's budget), then MagicWarp refined by snapping, and confirms and
     polishes the pairs each pose is measured from; its detector is one of ``DETECTOR_PRESETS`` (S-HA in
-    one pass by default; S is topped up by S-HA on sparse frames). Every documented field is a ``deepslam run``
-    option."""
+    one pass on the image enlarged 2x by default; S is topped up by S-HA on sparse frames). Every documented field
+    is a ``deepslam run`` option."""
 
     frontend: Frontend = field(
         default="magic",
@@ -66,9 +66,9 @@ class TrackerConfig:
     detector_scale: Literal[1, 2] | None = field(
         default=None,
         metadata={
-            "help": "MagicPoint detects on the image enlarged this many times (default: the detector's preset; "
-            "S at scale 1 averages four grid shifts); S-HA at 2 halves the drift on clean and mildly noisy images "
-            "but loses more frames under full noise, 10%% slower (docs/experiments.md)"
+            "help": "MagicPoint detects on the image enlarged this many times (default: the detector's preset, 2; "
+            "S at scale 1 averages four grid shifts); S-HA at 1 drifts about twice as much on clean and mildly "
+            "noisy images but loses fewer frames under full noise, 10%% faster (docs/results.md)"
         },
     )
     top_up: bool = field(
@@ -199,7 +199,8 @@ EXTRACTION_PRESETS: dict[str, ExtractionConfig] = {
 DETECTOR_PRESETS: dict[str, ExtractionConfig] = {
     # S needs the work-arounds on photographs: the image enlarged 2x, two grid shifts
     "S": ExtractionConfig(threshold=0.001, top_k=POINT_BUDGET, grid_shifts=2, subpixel="parabola", upsample=2),
-    "S-HA": ExtractionConfig(threshold=0.001, top_k=POINT_BUDGET, subpixel="parabola"),  # one pass
+    # one pass on the image enlarged 2x: half the drift of the image as it is, clean or mildly noisy
+    "S-HA": ExtractionConfig(threshold=0.001, top_k=POINT_BUDGET, subpixel="parabola", upsample=2),
 }
 """How the magic front-end runs each MagicPoint (``top_k`` becomes ``TrackerConfig.budget``);
 ``TrackerConfig.detector_scale`` overrides ``upsample`` (S at scale 1 then averages four grid shifts). S-HA

@@ -426,10 +426,10 @@ def _shipped(variant: str, config: TrackerConfig) -> MagicPoint:
 
 def magic_detector(config: TrackerConfig) -> MagicPoint | ToppedUpDetector:
     """The detector of the magic front-end: the shipped MagicPoint of ``config.detector``, topped up by
-    S-HA where S finds too few points when ``config.top_up`` is set."""
+    S-HA (on the image as it is) where S finds too few points when ``config.top_up`` is set."""
     detector = _shipped(config.detector, config)
     if config.detector == "S" and config.top_up:
-        return ToppedUpDetector(detector, _shipped("S-HA", replace(config, detector_scale=None)), top_k=config.budget)
+        return ToppedUpDetector(detector, _shipped("S-HA", replace(config, detector_scale=1)), top_k=config.budget)
     return detector
 
 
