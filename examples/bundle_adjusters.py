@@ -26,14 +26,15 @@ RUNS = [("room", "circle"), ("clutter", "circle"), ("clutter", "forward")]
 
 
 def captured_windows(world: str, trajectory: str, seed: int, noise: float) -> list[tuple[mapping.LocalMap, dict]]:
-    """Copies of the map before each of its adjustments of three or more keyframes, with the run's true camera
+    """Copies of the map before each of its adjustments of three or more keyframes (not the trial adjustments of
+    the frames a map waits on, ``mapping.adjust_views``, which keep another distance), with the run's true camera
     poses by frame index and world points by landmark id (``{"poses": {...}, "points": (M, 3)}``)."""
     windows, adjust = [], mapping.LocalMap.adjust
 
-    def capture(local_map):
-        if len(local_map.keyframes) >= 3:
+    def capture(local_map, ranged=1):
+        if len(local_map.keyframes) >= 3 and ranged == 1:
             windows.append(copy.deepcopy(local_map))
-        return adjust(local_map)
+        return adjust(local_map, ranged)
 
     scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=60, seed=seed))
     poses = {}
