@@ -25,7 +25,9 @@ from deepslam.sim.scenario import Scenario, ScenarioConfig
 RUNS = [("room", "circle"), ("clutter", "circle"), ("clutter", "forward")]
 
 
-def captured_windows(world: str, trajectory: str, seed: int, noise: float) -> list[tuple[mapping.LocalMap, dict]]:
+def captured_windows(
+    world: str, trajectory: str, seed: int, noise: float, frames: int = 60
+) -> list[tuple[mapping.LocalMap, dict]]:
     """Copies of the map before each of its adjustments of three or more keyframes (not the trial adjustments of
     the frames a map waits on, ``mapping.adjust_views``, which keep another distance), with the run's true camera
     poses by frame index and world points by landmark id (``{"poses": {...}, "points": (M, 3)}``)."""
@@ -36,7 +38,7 @@ def captured_windows(world: str, trajectory: str, seed: int, noise: float) -> li
             windows.append(copy.deepcopy(local_map))
         return adjust(local_map, ranged)
 
-    scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=60, seed=seed))
+    scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
     poses = {}
     config = PipelineConfig(TrackerConfig("oracle", oracle_noise=noise), OdometryConfig())
     mapping.LocalMap.adjust = capture
@@ -107,10 +109,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--oracle-noise", type=float, default=0.5, help="pixel noise of the oracle's tracks")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds of each run")
+    parser.add_argument("--frames", type=int, default=60, help="frames a run (default: 60)")
     args = parser.parse_args()
+    if args.frames < 2:
+        parser.error(f"--frames must be at least 2, got {args.frames}")
     rows = []
     for (world, trajectory), seed in ((run, seed) for run in RUNS for seed in args.seeds):
-        for window, truth in captured_windows(world, trajectory, seed, args.oracle_noise):
+        for window, truth in captured_windows(world, trajectory, seed, args.oracle_noise, args.frames):
             oldest = window.keyframes[0].index
             before = depth_error(window.keyframes[0].T_world_cam, window.landmarks, truth, oldest)
             T_oldest, landmarks, colmap_seconds = with_pycolmap(window)
@@ -127,6 +132,8 @@ def main() -> None:
                     depth_error(T_oldest, landmarks, truth, oldest),
                 )
             )
+    if not rows:
+        parser.error(f"no run adjusted a window of three keyframes in {args.frames} frames: more --frames")
     medians = np.median(np.array(rows), axis=0)
     runs = ", ".join(f"{world} {trajectory}" for world, trajectory in RUNS)
     print(f"{len(rows)} windows of oracle runs (noise {args.oracle_noise} px, seeds {args.seeds}): {runs}")

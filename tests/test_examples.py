@@ -86,3 +86,18 @@ def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(ca
     with pytest.raises(SystemExit) as exit_info:  # a usage error, not a traceback
         runpy.run_path(str(EXAMPLES / "limit_split.py"), run_name="__main__")
     assert exit_info.value.code == 2 and "--seeds must be at least 1" in capsys.readouterr().err
+
+
+def test_bundle_adjusters_example_solves_the_maps_windows_with_gtsam_and_pycolmap(capsys, monkeypatch):
+    monkeypatch.setattr("sys.argv", ["bundle_adjusters.py", "--seeds", "0", "--frames", "25"])
+    runpy.run_path(str(EXAMPLES / "bundle_adjusters.py"), run_name="__main__")
+    windows, times, depths = capsys.readouterr().out.splitlines()
+    assert int(windows.split()[0]) > 0 and "room circle, clutter circle, clutter forward" in windows
+    gtsam_ms, pycolmap_ms = (float(word.strip(",")) for word in times.split()[-3::2])
+    before, gtsam_error, pycolmap_error = (float(word.strip(",")) for word in depths.split()[-5::2])
+    assert gtsam_ms > 0 and pycolmap_ms > 0
+    assert 0 < gtsam_error < 0.1 and 0 < pycolmap_error < 0.1 and gtsam_error <= 1.5 * before
+    monkeypatch.setattr("sys.argv", ["bundle_adjusters.py", "--seeds", "0", "--frames", "4"])
+    with pytest.raises(SystemExit) as exit_info:  # no window to adjust: a usage error, not a traceback
+        runpy.run_path(str(EXAMPLES / "bundle_adjusters.py"), run_name="__main__")
+    assert exit_info.value.code == 2 and "more --frames" in capsys.readouterr().err
