@@ -269,8 +269,7 @@ class LocalMap:
         it of the keyframe at window position ``ranged`` kept: by default the next) over the landmarks two or more
         of them observe, then drop observations that do not fit (``_drop_outliers``). Returns the graph and its
         solution (None where there was nothing to adjust)."""
-        cameras = self._views()
-        adjusted = self._seen_twice(cameras)
+        cameras, adjusted = self._views(), self.adjusted_landmarks()
         if len(self.keyframes) < 2 or not len(adjusted):
             return None
         graph, values, noise = gtsam.NonlinearFactorGraph(), gtsam.Values(), pixel_noise(self.config.huber_px)
@@ -294,9 +293,10 @@ class LocalMap:
         self._drop_outliers()
         return graph, result
 
-    def _seen_twice(self, cameras: list[Keyframe]) -> np.ndarray:
-        """The landmark ids (M,) that two or more of ``cameras`` observe, ascending."""
-        observed = np.concatenate([keyframe.ids[self.known(keyframe.ids)] for keyframe in cameras])
+    def adjusted_landmarks(self) -> np.ndarray:
+        """The landmark ids (M,) the next bundle adjustment moves: those two or more of its views (the window's
+        keyframes and the frames it observed) observe, ascending."""
+        observed = np.concatenate([view.ids[self.known(view.ids)] for view in self._views()])
         tracks, views = np.unique(observed.astype(np.int64), return_counts=True)
         return tracks[views >= 2]
 

@@ -60,35 +60,43 @@ def depth_error(T_world_oldest: np.ndarray, landmarks: dict[int, np.ndarray], tr
 
 
 def with_pycolmap(local_map: mapping.LocalMap) -> tuple[np.ndarray, dict[int, np.ndarray], float]:
-    """The window solved by pycolmap: the oldest keyframe's pose (4, 4), the landmarks, seconds."""
+    """The window solved by pycolmap as gtsam solves it: its keyframes and the frames located between them moved,
+    the keyframes that left it held where they are (constant poses), the landmarks two moving views observe, and
+    the gauge and scale held by the oldest keyframe with the retired ones (or, with none, pycolmap's two-camera
+    gauge). Returns the oldest keyframe's pose (4, 4), the landmarks and the seconds pycolmap took."""
     config, K = local_map.config, local_map.keyframes[0].K
     reconstruction = pycolmap.Reconstruction()
     camera = pycolmap.Camera(
         model="PINHOLE", width=160, height=120, params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], camera_id=1
     )
     reconstruction.add_camera_with_trivial_rig(camera)
+    moving = local_map.keyframes + local_map.frames
+    adjusted = local_map.adjusted_landmarks()
     seen: dict[int, list[tuple[int, int]]] = {}
-    for image_id, keyframe in enumerate(local_map.keyframes, start=1):
-        known = local_map.known(keyframe.ids)
-        image = pycolmap.Image(name=str(image_id), keypoints=keyframe.points[known], camera_id=1, image_id=image_id)
-        T_cam_world = np.linalg.inv(keyframe.T_world_cam)
+    for image_id, view in enumerate(moving + local_map.retired, start=1):
+        observed = np.isin(view.ids, adjusted)
+        image = pycolmap.Image(name=str(image_id), keypoints=view.points[observed], camera_id=1, image_id=image_id)
+        T_cam_world = np.linalg.inv(view.T_world_cam)
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(T_cam_world[:3, :3]), T_cam_world[:3, 3])
         reconstruction.add_image_with_trivial_frame(image, pose)
-        for index, track in enumerate(keyframe.ids[known]):
+        for index, track in enumerate(view.ids[observed]):
             seen.setdefault(int(track), []).append((image_id, index))
     adjustment = pycolmap.BundleAdjustmentConfig()
-    for image_id in range(1, len(local_map.keyframes) + 1):
+    for image_id in range(1, len(moving) + len(local_map.retired) + 1):
         adjustment.add_image(image_id)
     point_ids = {}
     for track, views in seen.items():
-        if len(views) >= 2:
-            elements = pycolmap.Track()
-            for image_id, index in views:
-                elements.add_element(image_id, index)
-            point_ids[track] = reconstruction.add_point3D(local_map.landmarks[track], elements)
-            adjustment.add_variable_point(point_ids[track])
+        elements = pycolmap.Track()
+        for image_id, index in views:
+            elements.add_element(image_id, index)
+        point_ids[track] = reconstruction.add_point3D(local_map.landmarks[track], elements)
+        adjustment.add_variable_point(point_ids[track])
     adjustment.set_constant_cam_intrinsics(1)
-    adjustment.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    if local_map.retired:
+        for image_id in (1, *range(len(moving) + 1, len(moving) + len(local_map.retired) + 1)):
+            adjustment.set_constant_rig_from_world_pose(image_id)
+    else:
+        adjustment.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     options = pycolmap.BundleAdjustmentOptions(
         refine_focal_length=False, refine_extra_params=False, print_summary=False
     )
