@@ -51,6 +51,9 @@ class MapConfig:
     # each frame located between keyframes joins the bundle adjustment at once (its pose: the adjusted one), with
     # the frames located since the keyframe before the current one; off: keyframes only (faster)
     adjust_frames: bool = True
+    # the solver of a window adjustment once keyframes have left it (they and the oldest keyframe hold the gauge and
+    # the scale): "gtsam" (Levenberg-Marquardt) or "pycolmap" (Ceres, the same problem, about 2x faster a window)
+    adjuster: str = "gtsam"
 
     def __post_init__(self):
         if self.window < 2 or self.min_located < 6 or self.min_initial_landmarks < self.min_located:
@@ -58,6 +61,8 @@ class MapConfig:
                 f"the map's window must hold at least 2 keyframes, PnP at least 6 landmarks and the first map at "
                 f"least as many, got {self.window}, {self.min_located}, {self.min_initial_landmarks}"
             )
+        if self.adjuster not in ("gtsam", "pycolmap"):
+            raise InputError(f"the map's adjuster must be gtsam or pycolmap, got {self.adjuster!r}")
         if self.fixed_keyframes < 0:
             raise InputError(f"the map's fixed keyframes must be 0 or more, got {self.fixed_keyframes}")
         thresholds = (

@@ -6,20 +6,19 @@ follows it, so its observations in the keyframes are the landmark's. The map is 
 the odometry's first keyframe; its scale is that of the first baseline it was triangulated from (the caller
 chooses it: a true length where the input has one, else 1), and the map carries it from keyframe to keyframe.
 
-Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors with a
-Huber loss: the window's keyframe poses and the landmarks two of them observe; the window's oldest keyframe is
-held fixed and its distance to the next one kept (a ``RangeFactorPose3``): gauge and scale. The last
-``fixed_keyframes`` keyframes to leave the window stay in it, held where they are, with their observations of
-its landmarks: the landmarks keep the wider baselines older views gave them (without, a window of keyframes
-a few pixels apart let their depths and its scale wander). The map's first two keyframes are adjusted as soon as
-it starts, which it does only once their marginal covariance determines the direction between them.
-Observations behind a camera or farther than ``max_reprojection_px`` from their landmark's projection afterwards
-are dropped, as are landmarks left with fewer than two; landmarks that no keyframe of the window observes are
-dropped with the keyframes that leave it. With ``adjust_frames``, each frame located between keyframes joins the
-adjustment as it comes (``observe``), with the frames located since the keyframe before the current one: its
-observations refine the landmarks the next frame is located against, and its own pose is the adjusted one.
-Frames make no landmarks.
-"""
+Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors (or, once keyframes
+have left the window, pycolmap's Ceres on the same problem: ``MapConfig.adjuster``) with a Huber loss: the window's
+keyframe poses and the landmarks two of them observe; the window's oldest keyframe is held fixed and its distance to
+the next one kept (a ``RangeFactorPose3``): gauge and scale. The last ``fixed_keyframes`` keyframes to leave the
+window stay in it, held where they are, with their observations of its landmarks: the landmarks keep the wider
+baselines older views gave them (without, a window of keyframes a few pixels apart let their depths and its scale
+wander). The map's first two keyframes are adjusted as soon as it starts, which it does only once their marginal
+covariance determines the direction between them. Observations behind a camera or farther than
+``max_reprojection_px`` from their landmark's projection afterwards are dropped, as are landmarks left with fewer
+than two; landmarks that no keyframe of the window observes are dropped with the keyframes that leave it. With
+``adjust_frames``, each frame located between keyframes joins the adjustment as it comes (``observe``), with the
+frames located since the keyframe before the current one: its observations refine the landmarks the next frame is
+located against, and its own pose is the adjusted one. Frames make no landmarks."""
 
 from __future__ import annotations
 
@@ -208,7 +207,7 @@ class LocalMap:
         """A frame located in the map between keyframes (its pose from ``locate``, its inlier tracks' ids and
         pixels) joins the bundle adjustment; returns its pose ``T_world_cam`` (4, 4) after it."""
         self.frames.append(frame)
-        self.adjust()
+        self._adjust_window()
         return frame.T_world_cam
 
     def _views(self) -> list[Keyframe]:
@@ -224,7 +223,7 @@ class LocalMap:
         retired = self.retired + left
         self.retired = retired[max(0, len(retired) - self.config.fixed_keyframes) :]
         self.frames = [frame for frame in self.frames if frame.index > self.keyframes[-2].index]
-        self.adjust()
+        self._adjust_window()
         self._cull()
         return made
 
@@ -263,6 +262,15 @@ class LocalMap:
                 np.linalg.norm(pixels - keyframe.points[index], axis=1) < self.config.max_reprojection_px
             )
         return good
+
+    def _adjust_window(self) -> None:
+        """The window's bundle adjustment as ``adjust`` makes it, by pycolmap where ``config.adjuster`` says so and
+        keyframes that left the window hold it with the oldest one (``adjust_with_pycolmap``)."""
+        if self.config.adjuster == "pycolmap" and self.retired and len(self.adjusted_landmarks()):
+            adjust_with_pycolmap(self._views(), self.retired, self.landmarks, self.adjusted_landmarks(), self.config)
+            self._drop_outliers()
+        else:
+            self.adjust()
 
     def adjust(self, ranged: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
         """Bundle adjustment of the window and the frames it observed (the oldest keyframe fixed, the distance to
@@ -339,6 +347,67 @@ class LocalMap:
         """Drop the landmarks no keyframe of the window observes."""
         observed = set(np.concatenate([k.ids for k in self.keyframes]).tolist())
         self.landmarks = {track: point for track, point in self.landmarks.items() if track in observed}
+
+
+def adjust_with_pycolmap(
+    moving: list[Keyframe],
+    held: list[Keyframe],
+    landmarks: dict[int, np.ndarray],
+    adjusted: np.ndarray,
+    config: MapConfig,
+) -> None:
+    """pycolmap's (Ceres') bundle adjustment of the ``moving`` views' poses (in place; the first one held) and the
+    ``adjusted`` landmarks (ids (M,), in ``landmarks`` in place), with the observations of the ``held`` views as well
+    (constant poses): ``LocalMap.adjust``'s problem where keyframes have left the window, with its Huber loss and
+    iteration cap, one thread. The held views with the first hold the gauge and the scale."""
+    import pycolmap
+
+    reconstruction, problem, points = _pycolmap_problem(moving + held, len(moving), landmarks, adjusted)
+    options = pycolmap.BundleAdjustmentOptions(refine_focal_length=False, refine_extra_params=False)
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.HUBER
+    options.ceres.loss_function_scale = config.huber_px
+    options.ceres.solver_options.max_num_iterations = config.iterations
+    options.ceres.solver_options.num_threads = 1
+    pycolmap.create_default_bundle_adjuster(options, problem, reconstruction).solve()
+    for image_id, view in enumerate(moving, start=1):
+        T_cam_world = np.eye(4)
+        T_cam_world[:3] = reconstruction.image(image_id).cam_from_world().matrix()
+        view.T_world_cam = np.linalg.inv(T_cam_world)
+    for track, point in points.items():
+        landmarks[track] = np.array(reconstruction.point3D(point).xyz)
+
+
+def _pycolmap_problem(views: list[Keyframe], moving: int, landmarks: dict[int, np.ndarray], adjusted: np.ndarray):
+    """pycolmap's reconstruction of ``views`` (image ids from 1; all but the first of the first ``moving`` held
+    constant) observing the ``adjusted`` landmarks, its adjustment config, and the point id of each landmark."""
+    import pycolmap
+
+    K = views[0].K
+    reconstruction, problem, seen, points = pycolmap.Reconstruction(), pycolmap.BundleAdjustmentConfig(), {}, {}
+    size = (round(2 * K[0, 2] + 1), round(2 * K[1, 2] + 1))  # a size only names the camera: the solver needs none
+    camera = pycolmap.Camera(model="PINHOLE", width=size[0], height=size[1], camera_id=1)
+    camera.params = K[[0, 1, 0, 1], [0, 1, 2, 2]]
+    reconstruction.add_camera_with_trivial_rig(camera)
+    for image_id, view in enumerate(views, start=1):
+        observed = np.isin(view.ids, adjusted)
+        T_cam_world = np.linalg.inv(view.T_world_cam)
+        image = pycolmap.Image(name=str(image_id), keypoints=view.points[observed], camera_id=1, image_id=image_id)
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(T_cam_world[:3, :3]), T_cam_world[:3, 3])
+        reconstruction.add_image_with_trivial_frame(image, pose)
+        problem.add_image(image_id)
+        for index, track in enumerate(view.ids[observed].tolist()):
+            seen.setdefault(track, []).append((image_id, index))
+    for image_id in (1, *range(moving + 1, len(views) + 1)):
+        problem.set_constant_rig_from_world_pose(image_id)
+    for track, observations in seen.items():
+        elements = pycolmap.Track()
+        for image_id, index in observations:
+            elements.add_element(image_id, index)
+        points[track] = reconstruction.add_point3D(landmarks[track], elements)
+        problem.add_variable_point(points[track])
+    problem.set_constant_cam_intrinsics(1)
+    return reconstruction, problem, points
 
 
 def _observations(keyframe: Keyframe, adjusted: np.ndarray) -> Iterator[tuple[int, np.ndarray]]:

@@ -1,7 +1,8 @@
-"""gtsam's bundle adjustment (the map's) beside pycolmap's (Ceres) on the same windows: every window the map
-adjusts in oracle runs is captured before its adjustment and solved by both, with the same Huber loss, the
-same iteration cap and one thread. Prints the median time a window and the median error of the landmarks'
-depths (in the oldest keyframe, against the simulator's points) before and after.
+"""gtsam's bundle adjustment beside pycolmap's (Ceres) on the same windows (``MapConfig.adjuster``): every window
+the map adjusts in oracle runs once keyframes have left it (they hold it) is captured before its adjustment and
+solved by both, with the same Huber loss, the same iteration cap and one thread. Prints the median time a window
+and the median error of the landmarks' depths (in the oldest keyframe, against the simulator's points) before and
+after.
 
     python examples/bundle_adjusters.py --oracle-noise 0.5
 """
@@ -13,7 +14,6 @@ import copy
 import time
 
 import numpy as np
-import pycolmap
 
 from deepslam.backend import mapping
 from deepslam.backend.config import OdometryConfig, PipelineConfig
@@ -60,57 +60,17 @@ def depth_error(T_world_oldest: np.ndarray, landmarks: dict[int, np.ndarray], tr
 
 
 def with_pycolmap(local_map: mapping.LocalMap) -> tuple[np.ndarray, dict[int, np.ndarray], float]:
-    """The window solved by pycolmap as gtsam solves it: its keyframes and the frames located between them moved,
-    the keyframes that left it held where they are (constant poses), the landmarks two moving views observe, and
-    the gauge and scale held by the oldest keyframe with the retired ones (or, with none, pycolmap's two-camera
-    gauge). Returns the oldest keyframe's pose (4, 4), the landmarks and the seconds pycolmap took."""
-    config, K = local_map.config, local_map.keyframes[0].K
-    reconstruction = pycolmap.Reconstruction()
-    camera = pycolmap.Camera(
-        model="PINHOLE", width=160, height=120, params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], camera_id=1
-    )
-    reconstruction.add_camera_with_trivial_rig(camera)
-    moving = local_map.keyframes + local_map.frames
-    adjusted = local_map.adjusted_landmarks()
-    seen: dict[int, list[tuple[int, int]]] = {}
-    for image_id, view in enumerate(moving + local_map.retired, start=1):
-        observed = np.isin(view.ids, adjusted)
-        image = pycolmap.Image(name=str(image_id), keypoints=view.points[observed], camera_id=1, image_id=image_id)
-        T_cam_world = np.linalg.inv(view.T_world_cam)
-        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(T_cam_world[:3, :3]), T_cam_world[:3, 3])
-        reconstruction.add_image_with_trivial_frame(image, pose)
-        for index, track in enumerate(view.ids[observed]):
-            seen.setdefault(int(track), []).append((image_id, index))
-    adjustment = pycolmap.BundleAdjustmentConfig()
-    for image_id in range(1, len(moving) + len(local_map.retired) + 1):
-        adjustment.add_image(image_id)
-    point_ids = {}
-    for track, views in seen.items():
-        elements = pycolmap.Track()
-        for image_id, index in views:
-            elements.add_element(image_id, index)
-        point_ids[track] = reconstruction.add_point3D(local_map.landmarks[track], elements)
-        adjustment.add_variable_point(point_ids[track])
-    adjustment.set_constant_cam_intrinsics(1)
-    if local_map.retired:
-        for image_id in (1, *range(len(moving) + 1, len(moving) + len(local_map.retired) + 1)):
-            adjustment.set_constant_rig_from_world_pose(image_id)
-    else:
-        adjustment.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    options = pycolmap.BundleAdjustmentOptions(
-        refine_focal_length=False, refine_extra_params=False, print_summary=False
-    )
-    options.ceres.loss_function_type = pycolmap.LossFunctionType.HUBER
-    options.ceres.loss_function_scale = config.huber_px
-    options.ceres.solver_options.max_num_iterations = config.iterations
-    options.ceres.solver_options.num_threads = 1
+    """A copy of the window solved by the map's pycolmap adjuster (``mapping.adjust_with_pycolmap``, as
+    ``MapConfig(adjuster="pycolmap")`` has it): the oldest keyframe's pose (4, 4), the landmarks it moved and the
+    seconds it took, the problem's set-up included."""
+    window = copy.deepcopy(local_map)
+    adjusted = window.adjusted_landmarks()
     started = time.perf_counter()
-    pycolmap.create_default_bundle_adjuster(options, adjustment, reconstruction).solve()
+    mapping.adjust_with_pycolmap(
+        window.keyframes + window.frames, window.retired, window.landmarks, adjusted, window.config
+    )
     seconds = time.perf_counter() - started
-    T_cam_world = np.eye(4)
-    T_cam_world[:3] = reconstruction.image(1).cam_from_world().matrix()
-    landmarks = {track: reconstruction.point3D(point_id).xyz for track, point_id in point_ids.items()}
-    return np.linalg.inv(T_cam_world), landmarks, seconds
+    return window.keyframes[0].T_world_cam, {track: window.landmarks[track] for track in adjusted.tolist()}, seconds
 
 
 def main() -> None:
@@ -124,6 +84,8 @@ def main() -> None:
     rows = []
     for (world, trajectory), seed in ((run, seed) for run in RUNS for seed in args.seeds):
         for window, truth in captured_windows(world, trajectory, seed, args.oracle_noise, args.frames):
+            if not window.retired:  # the map gives pycolmap only windows that keyframes which left them hold
+                continue
             oldest = window.keyframes[0].index
             before = depth_error(window.keyframes[0].T_world_cam, window.landmarks, truth, oldest)
             T_oldest, landmarks, colmap_seconds = with_pycolmap(window)
@@ -141,7 +103,9 @@ def main() -> None:
                 )
             )
     if not rows:
-        parser.error(f"no run adjusted a window of three keyframes in {args.frames} frames: more --frames")
+        parser.error(
+            f"no run adjusted a window that keyframes which left it hold in {args.frames} frames: more --frames"
+        )
     medians = np.median(np.array(rows), axis=0)
     runs = ", ".join(f"{world} {trajectory}" for world, trajectory in RUNS)
     print(f"{len(rows)} windows of oracle runs (noise {args.oracle_noise} px, seeds {args.seeds}): {runs}")

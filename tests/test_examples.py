@@ -89,7 +89,7 @@ def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(ca
 
 
 def test_bundle_adjusters_example_solves_the_maps_windows_with_gtsam_and_pycolmap(capsys, monkeypatch):
-    monkeypatch.setattr("sys.argv", ["bundle_adjusters.py", "--seeds", "0", "--frames", "25"])
+    monkeypatch.setattr("sys.argv", ["bundle_adjusters.py", "--seeds", "0", "--frames", "40"])
     runpy.run_path(str(EXAMPLES / "bundle_adjusters.py"), run_name="__main__")
     windows, times, depths = capsys.readouterr().out.splitlines()
     assert int(windows.split()[0]) > 0 and "room circle, clutter circle, clutter forward" in windows

@@ -14,6 +14,7 @@ from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
 from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
 from deepslam.backend.pipeline import Pipeline
 from deepslam.backend.scale import MapScale, with_length
+from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
 from deepslam.frontend.tracking import OracleTracker, Tracks
 from deepslam.geometry import vector_angle
@@ -97,6 +98,32 @@ def test_keyframes_that_left_the_window_hold_its_landmarks_where_they_saw_them(r
         if retired:
             assert all(np.allclose(k.T_world_cam, T) for k, T in zip(copy.retired, held, strict=True))  # held
     assert errors[True] < 0.7 * errors[False], errors  # more views, wider apart: nearer the truth
+
+
+def test_pycolmap_adjusts_a_window_held_by_its_retired_keyframes_as_gtsam_does(rng):
+    world = _world(rng)
+    maps = {}
+    for adjuster in ("gtsam", "pycolmap"):
+        local_map = LocalMap(MapConfig(window=3, fixed_keyframes=2, adjuster=adjuster))
+        rng_views = np.random.default_rng(1)  # the same noisy views for both
+        local_map.start(_keyframe(0, np.eye(4), world, rng_views), _keyframe(1, _sideways(0.4), world, rng_views))
+        for index in range(2, 7):
+            moved = _sideways(0.4 * index)
+            moved[:3, 3] += rng_views.normal(0, 0.02, 3)  # each keyframe placed 2 cm off, as PnP might
+            local_map.add(_keyframe(index, moved, world, rng_views))
+        maps[adjuster] = local_map
+    assert maps["pycolmap"].retired  # the windows it solved were held by keyframes that left them
+    errors = {}  # metres of the window's keyframes from the truth, and the landmarks' median share of their depth
+    for adjuster, local_map in maps.items():
+        placed = [np.linalg.norm(k.T_world_cam[:3, 3] - [0.4 * k.index, 0.0, 0.0]) for k in local_map.keyframes]
+        ids, points = local_map.points()
+        errors[adjuster] = max(placed), np.median(np.linalg.norm(points - world[ids], axis=1) / world[ids, 2])
+    (gtsam_placed, gtsam_points), (colmap_placed, colmap_points) = errors["gtsam"], errors["pycolmap"]
+    assert colmap_placed != gtsam_placed  # solved by the other solver ...
+    assert colmap_placed < 1.1 * gtsam_placed + 0.002 and colmap_points < 1.1 * gtsam_points + 1e-3  # ... as well
+    assert colmap_points < 0.03
+    with pytest.raises(InputError, match="adjuster"):
+        MapConfig(adjuster="ceres")
 
 
 def _forward(z):
