@@ -52,8 +52,8 @@ class MapConfig:
     # the frames located since the keyframe before the current one; off: keyframes only (faster)
     adjust_frames: bool = True
     # the solver of a window adjustment once keyframes have left it (they and the oldest keyframe hold the gauge and
-    # the scale): "gtsam" (Levenberg-Marquardt) or "pycolmap" (Ceres, the same problem, about 2x faster a window)
-    adjuster: str = "gtsam"
+    # the scale): "pycolmap" (Ceres, about 2x faster a window) or "gtsam" (Levenberg-Marquardt, the same problem)
+    adjuster: str = "pycolmap"
 
     def __post_init__(self):
         if self.window < 2 or self.min_located < 6 or self.min_initial_landmarks < self.min_located:

@@ -63,5 +63,6 @@ $TIME docs/eval/seconds_train_ranks2.txt python -m torch.distributed.run --stand
 deepslam run --out out/run.mcap | tee docs/eval/run_default.txt
 deepslam run --frontend oracle --out out/oracle.mcap
 deepslam run --frontend classical --out out/classical.mcap
+rm -f docs/drift.txt docs/drift.json  # drift keeps an earlier drift's results: these are the last run's
 deepslam drift out/run.mcap out/oracle.mcap out/classical.mcap --out docs | tee docs/eval/drift_default.txt
 deepslam report out/run.mcap out/oracle.mcap out/classical.mcap --out out/report.html
