@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from deepslam.backend import mapping
-from deepslam.backend.config import OdometryConfig, PipelineConfig
+from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.runs import simulated_frames
 from deepslam.backend.evaluation.truth import run_pipeline
 from deepslam.frontend.config import TrackerConfig
@@ -40,7 +40,10 @@ def captured_windows(
 
     scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
     poses = {}
-    config = PipelineConfig(TrackerConfig("oracle", oracle_noise=noise), OdometryConfig())
+    # gtsam's map, so that every window goes through LocalMap.adjust, where it is captured
+    config = PipelineConfig(
+        TrackerConfig("oracle", oracle_noise=noise), OdometryConfig(map=MapConfig(adjuster="gtsam"))
+    )
     mapping.LocalMap.adjust = capture
     try:
         for _, frame, result in run_pipeline(simulated_frames(scenario), config):
