@@ -266,8 +266,9 @@ class LocalMap:
     def _adjust_window(self) -> None:
         """The window's bundle adjustment as ``adjust`` makes it, by pycolmap where ``config.adjuster`` says so and
         keyframes that left the window hold it with the oldest one (``adjust_with_pycolmap``)."""
-        if self.config.adjuster == "pycolmap" and self.retired and len(self.adjusted_landmarks()):
-            adjust_with_pycolmap(self._views(), self.retired, self.landmarks, self.adjusted_landmarks(), self.config)
+        adjusted = self.adjusted_landmarks() if self.config.adjuster == "pycolmap" and self.retired else None
+        if adjusted is not None and len(adjusted):
+            adjust_with_pycolmap(self._views(), self.retired, self.landmarks, adjusted, self.config)
             self._drop_outliers()
         else:
             self.adjust()
@@ -379,8 +380,9 @@ def adjust_with_pycolmap(
 
 
 def _pycolmap_problem(views: list[Keyframe], moving: int, landmarks: dict[int, np.ndarray], adjusted: np.ndarray):
-    """pycolmap's reconstruction of ``views`` (image ids from 1; all but the first of the first ``moving`` held
-    constant) observing the ``adjusted`` landmarks, its adjustment config, and the point id of each landmark."""
+    """pycolmap's reconstruction of ``views`` (image ids from 1; the first ``moving`` of them move but the first, the
+    rest are held constant) observing the ``adjusted`` landmarks, its adjustment config, and each landmark's point
+    id."""
     import pycolmap
 
     K = views[0].K
