@@ -51,8 +51,8 @@ class MapConfig:
     # each frame located between keyframes joins the bundle adjustment at once (its pose: the adjusted one), with
     # the frames located since the keyframe before the current one; off: keyframes only (faster)
     adjust_frames: bool = True
-    # the solver of a window adjustment once keyframes have left it (they and the oldest keyframe hold the gauge and
-    # the scale): "pycolmap" (Ceres, about 2x faster a window) or "gtsam" (Levenberg-Marquardt, the same problem)
+    # the solver of a window adjustment (not of the first map's, whose uncertainty gtsam measures): "pycolmap" (Ceres,
+    # 1.3-2x faster a window) or "gtsam" (Levenberg-Marquardt, the same problem)
     adjuster: str = "pycolmap"
 
     def __post_init__(self):

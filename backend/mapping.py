@@ -22,7 +22,7 @@ located against, and its own pose is the adjusted one. Frames make no landmarks.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -264,14 +264,15 @@ class LocalMap:
         return good
 
     def _adjust_window(self) -> None:
-        """The window's bundle adjustment as ``adjust`` makes it, by pycolmap where ``config.adjuster`` says so and
-        keyframes that left the window hold it with the oldest one (``adjust_with_pycolmap``)."""
-        adjusted = self.adjusted_landmarks() if self.config.adjuster == "pycolmap" and self.retired else None
-        if adjusted is not None and len(adjusted):
+        """The window's bundle adjustment as ``adjust`` makes it, by pycolmap where ``config.adjuster`` says so
+        (``adjust_with_pycolmap``)."""
+        if self.config.adjuster == "gtsam" or len(self.keyframes) < 2:
+            self.adjust()
+            return
+        adjusted = self.adjusted_landmarks()
+        if len(adjusted):
             adjust_with_pycolmap(self._views(), self.retired, self.landmarks, adjusted, self.config)
             self._drop_outliers()
-        else:
-            self.adjust()
 
     def adjust(self, ranged: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
         """Bundle adjustment of the window and the frames it observed (the oldest keyframe fixed, the distance to
@@ -359,8 +360,9 @@ def adjust_with_pycolmap(
 ) -> None:
     """pycolmap's (Ceres') bundle adjustment of the ``moving`` views' poses (in place; the first one held) and the
     ``adjusted`` landmarks (ids (M,), in ``landmarks`` in place), with the observations of the ``held`` views as well
-    (constant poses): ``LocalMap.adjust``'s problem where keyframes have left the window, with its Huber loss and
-    iteration cap, one thread. The held views with the first hold the gauge and the scale."""
+    (constant poses): ``LocalMap.adjust``'s problem, with its Huber loss and iteration cap, one thread. The first
+    view holds the gauge; the held views hold the scale with it, or where there are none, the second view's
+    distance from the first is kept (``_keep_distance``), as ``LocalMap.adjust`` keeps it."""
     import pycolmap
 
     reconstruction, problem, points = _pycolmap_problem(moving + held, len(moving), landmarks, adjusted)
@@ -370,6 +372,7 @@ def adjust_with_pycolmap(
     options.ceres.loss_function_scale = config.huber_px
     options.ceres.solver_options.max_num_iterations = config.iterations
     options.ceres.solver_options.num_threads = 1
+    distance = np.linalg.norm(moving[1].T_world_cam[:3, 3] - moving[0].T_world_cam[:3, 3])
     pycolmap.create_default_bundle_adjuster(options, problem, reconstruction).solve()
     for image_id, view in enumerate(moving, start=1):
         T_cam_world = np.eye(4)
@@ -377,6 +380,22 @@ def adjust_with_pycolmap(
         view.T_world_cam = np.linalg.inv(T_cam_world)
     for track, point in points.items():
         landmarks[track] = np.array(reconstruction.point3D(point).xyz)
+    if not held:
+        _keep_distance(moving, landmarks, points, distance)
+
+
+def _keep_distance(
+    views: list[Keyframe], landmarks: dict[int, np.ndarray], moved: Iterable[int], distance: float
+) -> None:
+    """Scale ``views`` (their positions, in place) and the ``moved`` landmarks (ids, in ``landmarks`` in place) about
+    the first view's position so that the second lies ``distance`` from it again: a solution of a bundle adjustment
+    with only the first view held is one up to scale, and every such scaling fits the observations alike."""
+    origin = views[0].T_world_cam[:3, 3].copy()
+    scale = distance / max(float(np.linalg.norm(views[1].T_world_cam[:3, 3] - origin)), 1e-12)
+    for view in views[1:]:
+        view.T_world_cam[:3, 3] = origin + scale * (view.T_world_cam[:3, 3] - origin)
+    for track in moved:
+        landmarks[track] = origin + scale * (landmarks[track] - origin)
 
 
 def _pycolmap_problem(views: list[Keyframe], moving: int, landmarks: dict[int, np.ndarray], adjusted: np.ndarray):
@@ -409,6 +428,8 @@ def _pycolmap_problem(views: list[Keyframe], moving: int, landmarks: dict[int, n
         points[track] = reconstruction.add_point3D(landmarks[track], elements)
         problem.add_variable_point(points[track])
     problem.set_constant_cam_intrinsics(1)
+    # where only the first view is held, one coordinate of the second's position holds the scale (no free direction)
+    problem.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     return reconstruction, problem, points
 
 

@@ -126,6 +126,26 @@ def test_pycolmap_adjusts_a_window_held_by_its_retired_keyframes_as_gtsam_does(r
         MapConfig(adjuster="ceres")
 
 
+def test_pycolmap_keeps_the_first_baseline_of_a_window_no_retired_keyframe_holds(rng):
+    world = _world(rng)
+    maps = {}
+    for adjuster in ("gtsam", "pycolmap"):
+        local_map = LocalMap(MapConfig(window=6, adjuster=adjuster))
+        rng_views = np.random.default_rng(2)  # the same noisy views for both
+        local_map.start(_keyframe(0, np.eye(4), world, rng_views), _keyframe(1, _sideways(0.4), world, rng_views))
+        for index in range(2, 5):
+            moved = _sideways(0.4 * index)
+            moved[:3, 3] += rng_views.normal(0, 0.02, 3)
+            local_map.add(_keyframe(index, moved, world, rng_views))
+        maps[adjuster] = local_map
+    assert not maps["pycolmap"].retired  # only the oldest keyframe and the first baseline hold the window
+    first, second = maps["pycolmap"].keyframes[:2]
+    kept = np.linalg.norm(second.T_world_cam[:3, 3] - first.T_world_cam[:3, 3])
+    assert kept == pytest.approx(np.linalg.norm(maps["gtsam"].pose(1)[:3, 3] - maps["gtsam"].pose(0)[:3, 3]), rel=1e-3)
+    apart = [np.linalg.norm(maps["pycolmap"].pose(i)[:3, 3] - maps["gtsam"].pose(i)[:3, 3]) for i in range(5)]
+    assert 0 < max(apart) < 0.002  # solved by the other solver, to the same poses
+
+
 def _forward(z):
     """A camera ``z`` m ahead of the origin."""
     T = np.eye(4)
