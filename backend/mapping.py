@@ -373,7 +373,11 @@ def adjust_with_pycolmap(
     options.ceres.solver_options.max_num_iterations = config.iterations
     options.ceres.solver_options.num_threads = 1
     distance = np.linalg.norm(moving[1].T_world_cam[:3, 3] - moving[0].T_world_cam[:3, 3])
-    pycolmap.create_default_bundle_adjuster(options, problem, reconstruction).solve()
+    warnings_shown, pycolmap.logging.minloglevel = pycolmap.logging.minloglevel, int(pycolmap.logging.Level.ERROR)
+    try:  # Ceres warns when a step's factorisation fails, then damps the step more, as gtsam does silently
+        pycolmap.create_default_bundle_adjuster(options, problem, reconstruction).solve()
+    finally:
+        pycolmap.logging.minloglevel = warnings_shown
     for image_id, view in enumerate(moving, start=1):
         T_cam_world = np.eye(4)
         T_cam_world[:3] = reconstruction.image(image_id).cam_from_world().matrix()

@@ -510,6 +510,15 @@ def _contradicted(
     return _epipolar_residual(planar, p1, p2, K) > EPIPOLAR_GAIN * _epipolar_residual(general, p1, p2, K)
 
 
+def _fundamental(p1: np.ndarray, p2: np.ndarray) -> np.ndarray | None:
+    """The fundamental matrix (3, 3) of the pairs by MAGSAC, or by RANSAC where OpenCV's USAC asserts on a sample
+    (it does on some: "!model.empty()"); None (or stacked solutions) where OpenCV finds none."""
+    try:
+        return cv2.findFundamentalMat(p1, p2, cv2.USAC_MAGSAC, 1.0, 0.999)[0]
+    except cv2.error:
+        return cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, 1.0, 0.999)[0]
+
+
 def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[str, np.ndarray | None, np.ndarray]:
     """ORB-SLAM's choice between a homography and a fundamental matrix: "homography" when
     R_H = S_H / (S_H + S_F) > ``HOMOGRAPHY_RATIO``. Returns (model, H or None, H inlier mask (N,)).
@@ -522,7 +531,7 @@ def select_model(p1: np.ndarray, p2: np.ndarray, sigma: float = 1.0) -> tuple[st
     H, _ = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
     if H is None:
         return "essential", None, np.zeros(len(p1), bool)
-    F, _ = cv2.findFundamentalMat(p1, p2, cv2.USAC_MAGSAC, 1.0, 0.999)
+    F = _fundamental(p1, p2)
     score_h, inliers_h = _score_homography(H, p1, p2, sigma)
     score_f = _score_fundamental(F[:3], p1, p2, sigma)[0] if F is not None and F.shape[0] >= 3 else 0.0
     ratio = score_h / max(score_h + score_f, 1e-12)

@@ -183,6 +183,21 @@ def test_a_fit_opencv_refuses_gives_a_failed_pose_with_its_reason_on_one_line(rn
     assert "4 corresponding point sets" in result.reason and "\n" not in result.reason and ".cpp" not in result.reason
 
 
+def test_a_fundamental_matrix_usac_asserts_on_is_fitted_by_ransac(rng, monkeypatch):
+    fit = cv2.findFundamentalMat
+
+    def asserting(p1, p2, method, *args):  # as OpenCV's USAC does on some samples ("!model.empty()")
+        if method == cv2.USAC_MAGSAC:
+            raise cv2.error("!model.empty()")
+        return fit(p1, p2, method, *args)
+
+    monkeypatch.setattr(relpose.cv2, "findFundamentalMat", asserting)
+    p1, p2 = _views(rng, False)
+    result = relpose.estimate(p1, p2, K)
+    assert result.model == "essential"  # the scores still chose: points at many depths
+    assert max(_errors(result.T_c1_c2, T_TRUE)) < 3.0
+
+
 def test_vector_angle_broadcasts_and_is_zero_for_a_vector_without_length():
     normals = np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 1.0], [0.0, -3.0, 0.0]])
     np.testing.assert_allclose(np.degrees(vector_angle(normals, [0.0, 0.0, 1.0])), [0.0, 45.0, 90.0], atol=1e-12)

@@ -146,6 +146,30 @@ def test_pycolmap_keeps_the_first_baseline_of_a_window_no_retired_keyframe_holds
     assert 0 < max(apart) < 0.002  # solved by the other solver, to the same poses
 
 
+def test_pycolmaps_warnings_while_it_solves_stay_off_the_terminal(rng, capfd, monkeypatch):
+    import pycolmap
+
+    world, real = _world(rng), pycolmap.create_default_bundle_adjuster
+
+    class Warning:  # as Ceres warns when a step's factorisation fails (then damps the step more)
+        def __init__(self, *args):
+            self.adjuster = real(*args)
+
+        def solve(self):
+            pycolmap.logging.warning("Linear solver failure")
+            pycolmap.logging.error("an error still shows")
+            return self.adjuster.solve()
+
+    monkeypatch.setattr(pycolmap, "create_default_bundle_adjuster", Warning)
+    level = pycolmap.logging.minloglevel
+    local_map = LocalMap(MapConfig(window=6))
+    local_map.start(_keyframe(0, np.eye(4), world, rng), _keyframe(1, _sideways(0.4), world, rng))
+    local_map.add(_keyframe(2, _sideways(0.8), world, rng))
+    err = capfd.readouterr().err
+    assert "Linear solver failure" not in err and "an error still shows" in err
+    assert pycolmap.logging.minloglevel == level  # restored
+
+
 def _forward(z):
     """A camera ``z`` m ahead of the origin."""
     T = np.eye(4)
