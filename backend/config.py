@@ -117,6 +117,17 @@ class OdometryConfig:
             "min": 0,
         },
     )
+    vote_flow_px: float = field(
+        default=0.0,
+        metadata={
+            "help": "a two-view pose measured over less median track motion (px) than this leads neither the next "
+            "pose nor the plane's normal (at 1-2 px a homography's decomposition can be tens of degrees off, and the "
+            "next frames would follow it), and pairs a homography and an essential matrix explain with different "
+            "motions take the essential matrix's pose where no motion so far tells them apart; 0: every pose leads, "
+            "such pairs are lost (docs/experiments.md: 3 drifts less)",
+            "min": 0,
+        },
+    )
     min_parallax: float = 3.0  # below this median motion (px) to the keyframe, measure against the one before
     min_shared_tracks: int = 20  # fewer tracks shared with the keyframe make a new keyframe too
     reinitialise_after: int = 3  # this many lost frames in a row: the current frame becomes the keyframe
@@ -136,6 +147,8 @@ class OdometryConfig:
             )
         if self.plane_distance is not None and not self.plane_distance > 0:
             raise InputError(f"the distance to the dominant plane must be positive, got {self.plane_distance}")
+        if not self.vote_flow_px >= 0:
+            raise InputError(f"the flow a pose needs to lead the next must be at least 0 px, got {self.vote_flow_px}")
         if not self.max_rotation_jump >= 0:
             raise InputError(f"the largest rotation jump must be at least 0 degrees, got {self.max_rotation_jump}")
         if self.reinitialise_after < 1:

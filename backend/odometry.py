@@ -162,7 +162,7 @@ class Odometry:
         self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index
         self.frames = 0
         plane_lengths = config.scale in ("plane", "none")
-        self.two_view = TwoView(config.method, config.max_rotation_jump, plane_lengths)
+        self.two_view = TwoView(config.method, config.max_rotation_jump, plane_lengths, config.vote_flow_px)
         self.plane = PlaneScale(config.plane_distance) if plane_lengths else None
         self.keyframe, self.previous_keyframe = 0, None
         self.lost_in_a_row = 0
@@ -386,7 +386,7 @@ class Odometry:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
             )
-            self.two_view.moved(T)
+            self.two_view.moved(T, np.inf if rel.model == "pnp" else parallax)
         else:
             last, velocity = self.estimate(k - 1), self.scale.velocity()
             T = np.linalg.inv(self.graph.pose(kf)) @ (last if velocity is None else last @ velocity)

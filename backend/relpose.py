@@ -366,6 +366,7 @@ def estimate(
     previous_t: np.ndarray | None = None,
     sigma: float = 1.0,
     previous_normal: np.ndarray | None = None,
+    ambiguous_takes_essential: bool = False,
 ) -> RelativePose:
     """Relative pose of camera 2 in camera 1 from matched pixels.
 
@@ -373,7 +374,8 @@ def estimate(
     points, fewer than ``MIN_MATCHES`` distinct matches, collinear points (``MIN_SPREAD_PX``), a model
     that explains less than ``MIN_INLIER_RATIO`` of the matches or fewer than ``MIN_INLIERS`` of them, or, with
     "auto", pairs that a homography and an essential matrix explain alike with motions ``AMBIGUOUS_DEG`` apart
-    where ``previous_t`` does not tell which (``_unambiguous``: the scene may not be a plane). A median flow below
+    where ``previous_t`` does not tell which (``_unambiguous``: the scene may not be a plane; with
+    ``ambiguous_takes_essential`` and no ``previous_t``, the essential matrix's pose). A median flow below
     ``STATIC_FLOW_PX`` gives "static" (identity); pure rotation is flagged ``rotation_only`` (no translation).
 
     Args:
@@ -385,6 +387,8 @@ def estimate(
         previous_t, previous_normal: the motion and the plane's normal (3,) measured before, in camera 1;
             they choose between a homography's decompositions (``homography_pose``).
         sigma: the pixel noise the model scores assume.
+        ambiguous_takes_essential: where "auto" finds the pairs ambiguous and there is no ``previous_t``, take the
+            essential matrix's pose (a homography's decomposition off a plane is often reversed) instead of failing.
 
     Returns:
         ``RelativePose``: ``T_c1_c2`` (4, 4) with a unit (or zero) translation, the model, the inliers (N,).
@@ -411,7 +415,7 @@ def estimate(
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < STATIC_FLOW_PX:
         return RelativePose(np.eye(4), "static", np.ones(len(p1), bool), reason="no motion")
     try:
-        pose = _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal)
+        pose = _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal, ambiguous_takes_essential)
     except cv2.error as error:  # USAC asserts on some degenerate samples instead of failing softly
         return _failed(len(p1), _opencv_reason(error))
     if pose.ok and pose.inlier_ratio < MIN_INLIER_RATIO:
@@ -439,7 +443,7 @@ def _degenerate(p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> str:
     return ""
 
 
-def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> RelativePose:
+def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal, ambiguous_takes_essential) -> RelativePose:
     if method == "pycolmap":
         return pycolmap_pose(p1, p2, K, size)
     if method == "homography":
@@ -465,11 +469,15 @@ def _estimate(p1, p2, K, method, size, previous_t, sigma, previous_normal) -> Re
     off_plane = _transfer_px(H, p1, p2) > OFF_PLANE_PX
     if _contradicted(planar, general, off_plane, p1, p2, K):
         return general
-    return _unambiguous(planar, general, previous_t, previous_normal)
+    return _unambiguous(planar, general, previous_t, previous_normal, ambiguous_takes_essential)
 
 
 def _unambiguous(
-    planar: RelativePose, general: RelativePose, previous_t: np.ndarray | None, previous_normal: np.ndarray | None
+    planar: RelativePose,
+    general: RelativePose,
+    previous_t: np.ndarray | None,
+    previous_normal: np.ndarray | None,
+    takes_essential: bool = False,
 ) -> RelativePose:
     """The homography's pose ``planar`` unless it and the essential matrix's ``general`` move the camera
     ``AMBIGUOUS_DEG`` apart while E explains as many pairs (within ``AMBIGUOUS_SHARE`` of them) and the plane is
@@ -477,7 +485,7 @@ def _unambiguous(
     plane (off a plane a homography still fits pairs of little parallax, its decomposition degrees off and its
     translation often reversed) and the motion so far, ``previous_t`` (3,), decides: the
     homography's pose if it is within ``AMBIGUOUS_DEG`` of it, else E's if that one is; else a failed pose that
-    says the pairs cannot tell."""
+    says the pairs cannot tell (E's pose where ``takes_essential`` and there is no ``previous_t``)."""
     if not general.ok or general.rotation_only or planar.inlier_ratio < MIN_INLIER_RATIO:
         return planar  # (too little support fails the homography anyway, with that reason)
     apart = float(np.degrees(vector_angle(planar.T_c1_c2[:3, 3], general.T_c1_c2[:3, 3])))
@@ -489,6 +497,8 @@ def _unambiguous(
         for pose in (planar, general):  # the plane first: where both go along, a homography fits for a reason
             if np.degrees(vector_angle(pose.T_c1_c2[:3, 3], previous_t)) <= AMBIGUOUS_DEG:
                 return pose
+    elif takes_essential:
+        return general
     return _failed(
         len(planar.inliers),
         f"ambiguous: the homography's and the essential matrix's translations are {apart:.0f} deg apart and "

@@ -39,10 +39,15 @@ class TwoView:
             models are tried (0: never).
         plane_lengths: translations take their length from the dominant plane (t / d): an essential matrix's pose
             takes that of the homography of the same pairs.
+        min_flow_px: a pose measured over less median flow (px) tells neither the motion so far nor the plane's
+            normal (a homography's decomposition is then often tens of degrees off, and the next would follow it);
+            above 0, where no motion tells ambiguous pairs apart, the essential matrix's pose is taken (0: every
+            pose tells, such pairs fail).
     """
 
-    def __init__(self, method: str, max_rotation_jump: float, plane_lengths: bool):
+    def __init__(self, method: str, max_rotation_jump: float, plane_lengths: bool, min_flow_px: float = 0.0):
         self.method, self.max_rotation_jump, self.plane_lengths = method, max_rotation_jump, plane_lengths
+        self.min_flow_px = min_flow_px
         self.last_translation: np.ndarray | None = None  # (3,) the last measured non-zero translation
         self.plane_normal_world: np.ndarray | None = None  # unit normal (3,) of the dominant plane last measured
 
@@ -60,13 +65,15 @@ class TwoView:
         estimated rotation, ``previous`` (4, 4) the estimate of the frame before image 2 seen from camera 1."""
         normal = R_world_1.T @ self.plane_normal_world if self.plane_normal_world is not None else None
         estimate = partial(
-            relpose.estimate, p1, p2, K, size=shape, previous_t=self.last_translation, previous_normal=normal
-        )
+            relpose.estimate, p1, p2, K, size=shape, previous_t=self.last_translation, previous_normal=normal,
+            ambiguous_takes_essential=self.min_flow_px > 0,
+        )  # fmt: skip
         rel = self._gated(estimate(self.method), estimate, previous)
         if rel.ok and self.plane_lengths and rel.model == "essential":
             plane = relpose.homography_pose(p1, p2, K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
-        if rel.ok and rel.plane_normal is not None and not rel.rotation_only:
+        flow = float(np.median(np.linalg.norm(p2 - p1, axis=1))) if len(p1) else 0.0
+        if rel.ok and rel.plane_normal is not None and not rel.rotation_only and flow >= self.min_flow_px:
             self.plane_normal_world = R_world_1 @ rel.plane_normal
         return rel
 
@@ -74,9 +81,10 @@ class TwoView:
         """Camera 2's pose from camera 1 by the essential matrix of the points (K, 2) alone."""
         return relpose.estimate(p1, p2, K, "essential", size=shape)
 
-    def moved(self, T: np.ndarray) -> None:
-        """A measured pose ``T`` (4, 4) was taken: its translation, if any, is the last one."""
-        if np.linalg.norm(T[:3, 3]) > 0:
+    def moved(self, T: np.ndarray, flow_px: float = np.inf) -> None:
+        """A pose ``T`` (4, 4) measured over ``flow_px`` (median, px; infinite: located in a map) was taken: its
+        translation, if any and measured over ``min_flow_px`` or more, is the last one."""
+        if np.linalg.norm(T[:3, 3]) > 0 and flow_px >= self.min_flow_px:
             self.last_translation = T[:3, 3]
 
     def _gated(

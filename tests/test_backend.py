@@ -566,6 +566,45 @@ def test_auto_flags_pairs_a_homography_and_an_essential_matrix_explain_with_diff
     assert flagged >= 2 and wrong_ok <= 3, (flagged, wrong_ok)
 
 
+def test_ambiguous_pairs_take_the_essential_matrix_where_no_motion_so_far_tells():
+    taken = []
+    for seed in range(10):  # the pairs of the test above
+        rng = np.random.default_rng(seed)
+        X = np.c_[rng.uniform(-1.5, 1.5, (100, 2)), rng.uniform(3, 6, 100)]
+        direction = rng.normal(size=3)
+        T = pose(np.radians(rng.uniform(-3, 3, 3)), 0.2 * direction / np.linalg.norm(direction))
+        p1 = _project(np.eye(4), X) + rng.normal(0, 0.3, (100, 2))
+        p2 = _project(T, X) + rng.normal(0, 0.3, (100, 2))
+        if "ambiguous" not in relpose.estimate(p1, p2, K, "auto").reason:
+            continue
+        result = relpose.estimate(p1, p2, K, "auto", ambiguous_takes_essential=True)
+        planar = relpose.estimate(p1, p2, K, "homography")
+        off = [np.degrees(vector_angle(pose.T_c1_c2[:3, 3], T[:3, 3])) for pose in (result, planar)]
+        taken.append((result.model, *off))
+    assert len(taken) >= 2 and all(model == "essential" for model, _, _ in taken), taken
+    near = np.array([(essential < 15, homography < 15) for _, essential, homography in taken])
+    assert near[:, 0].mean() >= 2 / 3 and near[:, 0].sum() > near[:, 1].sum(), taken  # a better guess than H's
+
+
+def test_a_pose_measured_over_little_flow_neither_leads_the_next_nor_names_the_plane(rng):
+    from deepslam.backend.twoview import TwoView
+
+    two_view = TwoView("auto", 0.0, plane_lengths=False, min_flow_px=3.0)
+    p1, p2 = _views(rng, True, pose(np.zeros(3), np.array([0.05, 0.0, 0.0])))  # a wall, 5 cm sideways
+    flow = float(np.median(np.linalg.norm(p2 - p1, axis=1)))
+    rel = two_view.measure(p1, p2, K, (120, 160), np.eye(3), np.eye(4))
+    assert flow < 3.0 and rel.model == "homography" and rel.plane_normal is not None
+    two_view.moved(rel.T_c1_c2, flow_px=flow)
+    assert two_view.last_translation is None and two_view.plane_normal_world is None
+    p1, p2 = _views(rng, True)  # the same wall, 0.3 m sideways: pixels of flow
+    rel = two_view.measure(p1, p2, K, (120, 160), np.eye(3), np.eye(4))
+    two_view.moved(rel.T_c1_c2, flow_px=8.0)
+    assert two_view.last_translation is not None and two_view.plane_normal_world is not None
+    assert np.degrees(vector_angle(two_view.plane_normal_world, [0, 0, 1])) < 5  # facing the camera
+    with pytest.raises(InputError, match="lead the next"):
+        OdometryConfig(vote_flow_px=-1.0)
+
+
 def test_a_pose_from_fewer_pairs_than_the_minimum_is_not_trusted(rng):
     X = np.c_[rng.uniform(-1, 1, (relpose.MIN_INLIERS - 1, 2)), rng.uniform(3, 6, relpose.MIN_INLIERS - 1)]
     T = pose(np.zeros(3), np.array([0.3, 0.0, 0.0]))
