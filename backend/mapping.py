@@ -6,19 +6,20 @@ follows it, so its observations in the keyframes are the landmark's. The map is 
 the odometry's first keyframe; its scale is that of the first baseline it was triangulated from (the caller
 chooses it: a true length where the input has one, else 1), and the map carries it from keyframe to keyframe.
 
-Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors (or, once keyframes
-have left the window, pycolmap's Ceres on the same problem: ``MapConfig.adjuster``) with a Huber loss: the window's
-keyframe poses and the landmarks two of them observe; the window's oldest keyframe is held fixed and its distance to
-the next one kept (a ``RangeFactorPose3``): gauge and scale. The last ``fixed_keyframes`` keyframes to leave the
-window stay in it, held where they are, with their observations of its landmarks: the landmarks keep the wider
-baselines older views gave them (without, a window of keyframes a few pixels apart let their depths and its scale
-wander). The map's first two keyframes are adjusted as soon as it starts, which it does only once their marginal
-covariance determines the direction between them. Observations behind a camera or farther than
-``max_reprojection_px`` from their landmark's projection afterwards are dropped, as are landmarks left with fewer
-than two; landmarks that no keyframe of the window observes are dropped with the keyframes that leave it. With
-``adjust_frames``, each frame located between keyframes joins the adjustment as it comes (``observe``), with the
-frames located since the keyframe before the current one: its observations refine the landmarks the next frame is
-located against, and its own pose is the adjusted one. Frames make no landmarks."""
+Bundle adjustment is gtsam's Levenberg-Marquardt over ``GenericProjectionFactorCal3_S2`` factors (or pycolmap's Ceres on
+the same problem, ``MapConfig.adjuster``, for every window but the first map's, whose marginals gtsam measures) with a
+Huber loss: the window's keyframe poses and the landmarks two of them observe; the window's oldest keyframe is held
+fixed and its distance to the next one kept (gtsam: a ``RangeFactorPose3``; pycolmap: the held keyframes that left the
+window, or where none has yet, its solution scaled back to that distance): gauge and scale. The last ``fixed_keyframes``
+keyframes to leave the window stay in it, held where they are, with their observations of its landmarks: the landmarks
+keep the wider baselines older views gave them (without, a window of keyframes a few pixels apart let their depths and
+its scale wander). The map's first two keyframes are adjusted as soon as it starts, which it does only once their
+marginal covariance determines the direction between them. Observations behind a camera or farther than
+``max_reprojection_px`` from their landmark's projection afterwards are dropped, as are landmarks left with fewer than
+two; landmarks that no keyframe of the window observes are dropped with the keyframes that leave it. With
+``adjust_frames``, each frame located between keyframes joins the adjustment as it comes (``observe``), with the frames
+located since the keyframe before the current one: its observations refine the landmarks the next frame is located
+against, and its own pose is the adjusted one. Frames make no landmarks."""
 
 from __future__ import annotations
 
