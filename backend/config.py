@@ -118,7 +118,7 @@ class OdometryConfig:
         },
     )
     vote_flow_px: float = field(
-        default=0.0,
+        default=3.0,
         metadata={
             "help": "a two-view pose measured over less median track motion (px) than this leads neither the next "
             "pose nor the plane's normal (at 1-2 px a homography's decomposition can be tens of degrees off, and the "

@@ -6,9 +6,10 @@ import pytest
 
 from deepslam.backend.config import OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.runs import simulated_frames
-from deepslam.backend.evaluation.truth import run_pipeline
+from deepslam.backend.evaluation.truth import TrueFrame, run_pipeline
 from deepslam.backend.keyframes import KeyframeEvidence, KeyframePolicy, MapLocation, Phase
 from deepslam.frontend.config import TrackerConfig
+from deepslam.frontend.tracking import Truth
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
 STEADY = KeyframeEvidence(
@@ -64,9 +65,15 @@ def test_a_frame_located_in_the_map_waits_for_a_baseline_that_triangulates():
     assert POLICY.decide(wide).reason == "a baseline of 10.0 px at the landmarks"
 
 
+def blinded(frame: TrueFrame, keep: int = 5) -> TrueFrame:
+    """``frame`` with the oracle seeing only ``keep`` of its landmarks (too few for a pose)."""
+    return replace(frame, landmarks=Truth(frame.landmarks.ids[:keep], frame.landmarks.pixels[:keep]))
+
+
 def test_the_pipeline_reports_its_phase_and_why_each_keyframe_is_one():
     scenario = Scenario(ScenarioConfig(world="clutter", trajectory="circle", frames=30, seed=1))
-    frames, oracle = simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle"))
+    frames, oracle = list(simulated_frames(scenario)), PipelineConfig(TrackerConfig("oracle"))
+    frames[2] = blinded(frames[2])  # a frame lost before the map
     results = [result for _, _, result in run_pipeline(frames, oracle)]
     phases = [result.phase for result in results]
     started = phases.index(Phase.TRACKING)
