@@ -36,7 +36,8 @@ from deepslam.geometry import vector_angle
 PNP_ITERATIONS = 200  # PnP RANSAC's iterations
 FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyframe (a hard constraint would need QR)
 INITIAL_VIEWS = 20  # a frame measured two-view while a map waits is adjusted with at most this many views ...
-INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length)
+INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length), ...
+INITIAL_ITERATIONS = 100  # ... until Levenberg-Marquardt converges (10-90 iterations), at most this many
 
 
 @dataclass
@@ -74,6 +75,19 @@ def project(T_world_cam: np.ndarray, K: np.ndarray, points: np.ndarray) -> tuple
     pixels = camera @ K.T
     depth = camera[:, 2]
     return pixels[:, :2] / np.where(np.abs(depth) > 1e-12, depth, 1e-12)[:, None], depth
+
+
+def _levenberg_marquardt(iterations: int, converge: bool) -> gtsam.LevenbergMarquardtParams:
+    """gtsam's Levenberg-Marquardt for at most ``iterations``, damped by lambda times the identity (lambda at most
+    1e5: from a view tens of degrees off it often takes no step at all, lambda reaching its bound first); with
+    ``converge`` for up to ``INITIAL_ITERATIONS``, damped by the diagonal of its Hessian (Marquardt's scaling, as
+    Ceres damps) with no practical bound on lambda."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(INITIAL_ITERATIONS if converge else iterations)
+    if converge:
+        params.setDiagonalDamping(True)
+        params.setlambdaUpperBound(1e12)
+    return params
 
 
 def calibration(K: np.ndarray) -> gtsam.Cal3_S2:
@@ -275,11 +289,12 @@ class LocalMap:
             adjust_with_pycolmap(self._views(), self.retired, self.landmarks, adjusted, self.config)
             self._drop_outliers()
 
-    def adjust(self, ranged: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
+    def adjust(self, ranged: int = 1, converge: bool = False) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
         """Bundle adjustment of the window and the frames it observed (the oldest keyframe fixed, the distance to
         it of the keyframe at window position ``ranged`` kept: by default the next) over the landmarks two or more
-        of them observe, then drop observations that do not fit (``_drop_outliers``). Returns the graph and its
-        solution (None where there was nothing to adjust)."""
+        of them observe, then drop observations that do not fit (``_drop_outliers``). Levenberg-Marquardt takes
+        ``config.iterations``, or with ``converge`` runs until it converges (``_levenberg_marquardt``). Returns the
+        graph and its solution (None where there was nothing to adjust)."""
         cameras, adjusted = self._views(), self.adjusted_landmarks()
         if len(self.keyframes) < 2 or not len(adjusted):
             return None
@@ -294,8 +309,7 @@ class LocalMap:
             for landmark, pixel in _observations(keyframe, adjusted):
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, pose, landmark, camera, False, False))
         self._hold_retired(graph, adjusted, noise)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.config.iterations)
+        params = _levenberg_marquardt(self.config.iterations, converge)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         for position, keyframe in enumerate(cameras):
             keyframe.T_world_cam = result.atPose3(gtsam.symbol("x", position)).matrix()
@@ -457,7 +471,7 @@ def adjust_views(views: list[Keyframe], config: MapConfig, min_px: float) -> np.
     for view in views[1:]:
         trial._triangulate(view, min_px)
         trial.keyframes.append(view)
-    if len(trial.landmarks) < config.min_located or trial.adjust(ranged=len(views) - 1) is None:
+    if len(trial.landmarks) < config.min_located or trial.adjust(len(views) - 1, converge=True) is None:
         return None
     return views[-1].T_world_cam
 

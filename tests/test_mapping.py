@@ -197,6 +197,19 @@ def test_views_adjusted_together_point_the_way_one_two_view_pose_cannot(rng):
     assert adjust_views(standing, MapConfig(), min_px=1.0) is None  # no baseline: no landmarks
 
 
+def test_views_adjusted_together_converge_from_a_pose_measured_far_off(rng):
+    # the last view's direction 30 deg off, as a two-view pose over a few pixels can be: with gtsam's default
+    # damping Levenberg-Marquardt takes no step from there; damped by the Hessian's diagonal it converges
+    world = _world(rng, nearest=3.0, farthest=9.0)
+    truth = [_forward(0.05 * i) for i in range(8)]
+    views = [_keyframe(i, T, world, rng) for i, T in enumerate(truth)]
+    views[-1].T_world_cam = truth[-1].copy()
+    views[-1].T_world_cam[:3, 3] = Rotation.from_euler("x", 30.0, degrees=True).as_matrix() @ truth[-1][:3, 3]
+    adjusted = adjust_views(views, MapConfig(), min_px=1.0)
+    assert np.degrees(vector_angle(adjusted[:3, 3], truth[-1][:3, 3])) < 5.0
+    assert np.linalg.norm(adjusted[:3, 3]) == pytest.approx(0.35, rel=1e-3)  # its distance from the first kept
+
+
 def test_the_map_keeps_every_keyframe_that_left_its_window_up_to_its_fixed_keyframes(rng):
     world = _world(rng)
     local_map = LocalMap(MapConfig(window=2, fixed_keyframes=6))
