@@ -33,10 +33,10 @@ def captured_windows(
     poses by frame index and world points by landmark id (``{"poses": {...}, "points": (M, 3)}``)."""
     windows, adjust = [], mapping.LocalMap.adjust
 
-    def capture(local_map, ranged=1):
+    def capture(local_map, ranged=1, converge=False):
         if len(local_map.keyframes) >= 3 and ranged == 1:
             windows.append(copy.deepcopy(local_map))
-        return adjust(local_map, ranged)
+        return adjust(local_map, ranged, converge)
 
     scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
     poses = {}
