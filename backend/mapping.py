@@ -38,6 +38,7 @@ FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyfra
 INITIAL_VIEWS = 20  # a frame measured two-view while a map waits is adjusted with at most this many views ...
 INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length), ...
 INITIAL_ITERATIONS = 100  # ... until Levenberg-Marquardt converges (10-90 iterations), at most this many
+START_GAIN = 2.0  # another start of those views is taken where it ends with this many times less error a factor
 
 
 @dataclass
@@ -460,20 +461,53 @@ def _observations(keyframe: Keyframe, adjusted: np.ndarray) -> Iterator[tuple[in
         yield gtsam.symbol("l", track), pixel
 
 
-def adjust_views(views: list[Keyframe], config: MapConfig, min_px: float) -> np.ndarray | None:
+def adjust_views(
+    views: list[Keyframe], config: MapConfig, min_px: float, starts: Iterable[np.ndarray] = ()
+) -> np.ndarray | None:
     """The pose ``T_world_cam`` (4, 4) of the last of ``views`` after one bundle adjustment of them all (copies:
     the views stay as they are) with the landmarks their tracks triangulate from rays ``min_px`` apart (each from
     the first view that saw it): the first view held, the last one's distance from it kept (gauge and scale).
-    None where they triangulate fewer than ``config.min_located`` landmarks."""
+    ``starts``: other poses (4, 4) the last view may start from, at its distance from the first; the adjustment
+    from the view's own pose is kept unless another ends with ``START_GAIN`` times less error a factor (from a
+    view measured degrees off, one can settle in a wrong minimum that another start avoids). None where they
+    triangulate fewer than ``config.min_located`` landmarks."""
+    last = views[-1]
+    adjusted = [
+        _adjusted_last([*views[:-1], replace(last, T_world_cam=T)], config, min_px) for T in (last.T_world_cam, *starts)
+    ]
+    finished = [result for result in adjusted if result is not None]
+    if not finished:
+        return None
+    best = min(finished, key=lambda result: result[1])
+    measured = adjusted[0]
+    return measured[0] if measured is not None and measured[1] <= START_GAIN * best[1] else best[0]
+
+
+def _adjusted_last(views: list[Keyframe], config: MapConfig, min_px: float) -> tuple[np.ndarray, float] | None:
+    """``adjust_views`` from the views as they are: the last one's pose (4, 4) and the final error a factor."""
     trial = LocalMap(replace(config, window=len(views), fixed_keyframes=0))
     views = [replace(view) for view in views]
     trial.keyframes = views[:1]
     for view in views[1:]:
         trial._triangulate(view, min_px)
         trial.keyframes.append(view)
-    if len(trial.landmarks) < config.min_located or trial.adjust(len(views) - 1, converge=True) is None:
+    solved = trial.adjust(len(views) - 1, converge=True) if len(trial.landmarks) >= config.min_located else None
+    if solved is None:
         return None
-    return views[-1].T_world_cam
+    graph, result = solved
+    return views[-1].T_world_cam, graph.error(result) / max(graph.size(), 1)
+
+
+def _at_distance(T_world_cam: np.ndarray, origin: np.ndarray, distance: float) -> np.ndarray | None:
+    """``T_world_cam`` (4, 4) moved along its direction from ``origin`` (4, 4) to ``distance`` from it; None where
+    it stands at the origin."""
+    offset = T_world_cam[:3, 3] - origin[:3, 3]
+    length = float(np.linalg.norm(offset))
+    if length < 1e-9:
+        return None
+    moved = T_world_cam.copy()
+    moved[:3, 3] = origin[:3, 3] + offset * distance / length
+    return moved
 
 
 class InitialViews:
@@ -492,10 +526,13 @@ class InitialViews:
     def adjust(self, first: Keyframe, current: Keyframe, estimate: Callable[[int], np.ndarray]) -> np.ndarray | None:
         """The pose ``T_world_cam`` (4, 4) of ``current`` adjusted together with the keyframe ``first`` (held, with
         ``current``'s distance from it) and up to ``INITIAL_VIEWS`` of the views, each at its latest ``estimate``
-        (``T_world_cam`` (4, 4) of a frame's index); None where they triangulate too few landmarks
-        (``adjust_views``)."""
+        (``T_world_cam`` (4, 4) of a frame's index), started from its measured pose and from the frame before's
+        (whichever ends with the less error); None where they triangulate too few landmarks (``adjust_views``)."""
         earlier = [replace(view, T_world_cam=estimate(index)) for index, view in self.views.items()]
-        return adjust_views([first, *earlier[-INITIAL_VIEWS:], current], self.config, INITIAL_TRIANGULATION_PX)
+        distance = float(np.linalg.norm(current.T_world_cam[:3, 3] - first.T_world_cam[:3, 3]))
+        before = _at_distance(estimate(current.index - 1), first.T_world_cam, distance)
+        views = [first, *earlier[-INITIAL_VIEWS:], current]
+        return adjust_views(views, self.config, INITIAL_TRIANGULATION_PX, [] if before is None else [before])
 
     def add(self, view: Keyframe) -> None:
         """Keep ``view`` (a frame's confirmed pairs with the keyframe) for the frames after it."""

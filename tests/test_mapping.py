@@ -11,7 +11,7 @@ from deepslam.backend import drift
 from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
-from deepslam.backend.mapping import Keyframe, LocalMap, adjust_views, project
+from deepslam.backend.mapping import InitialViews, Keyframe, LocalMap, adjust_views, project
 from deepslam.backend.pipeline import Pipeline
 from deepslam.backend.scale import MapScale, with_length
 from deepslam.errors import InputError
@@ -197,17 +197,38 @@ def test_views_adjusted_together_point_the_way_one_two_view_pose_cannot(rng):
     assert adjust_views(standing, MapConfig(), min_px=1.0) is None  # no baseline: no landmarks
 
 
+def _ahead_with_the_last_turned(rng, count, step, degrees):
+    """True poses of ``count`` views ``step`` m apart straight ahead, and the views, the last one's position turned
+    ``degrees`` about x around the first (its direction that far off, its distance right)."""
+    world = _world(rng, nearest=3.0, farthest=9.0)
+    truth = [_forward(step * i) for i in range(count)]
+    views = [_keyframe(i, T, world, rng) for i, T in enumerate(truth)]
+    views[-1].T_world_cam = truth[-1].copy()
+    views[-1].T_world_cam[:3, 3] = Rotation.from_euler("x", degrees, degrees=True).as_matrix() @ truth[-1][:3, 3]
+    return truth, views
+
+
 def test_views_adjusted_together_converge_from_a_pose_measured_far_off(rng):
     # the last view's direction 30 deg off, as a two-view pose over a few pixels can be: with gtsam's default
     # damping Levenberg-Marquardt takes no step from there; damped by the Hessian's diagonal it converges
-    world = _world(rng, nearest=3.0, farthest=9.0)
-    truth = [_forward(0.05 * i) for i in range(8)]
-    views = [_keyframe(i, T, world, rng) for i, T in enumerate(truth)]
-    views[-1].T_world_cam = truth[-1].copy()
-    views[-1].T_world_cam[:3, 3] = Rotation.from_euler("x", 30.0, degrees=True).as_matrix() @ truth[-1][:3, 3]
+    truth, views = _ahead_with_the_last_turned(rng, 8, 0.05, 30.0)
     adjusted = adjust_views(views, MapConfig(), min_px=1.0)
     assert np.degrees(vector_angle(adjusted[:3, 3], truth[-1][:3, 3])) < 5.0
     assert np.linalg.norm(adjusted[:3, 3]) == pytest.approx(0.35, rel=1e-3)  # its distance from the first kept
+
+
+def test_views_adjusted_together_also_start_from_the_frame_before_where_that_ends_with_far_less_error(rng):
+    # four views 10 cm apart, the last one's direction 120 deg off: from there the adjustment settles tens of
+    # degrees off; started from the frame before (at the last view's distance) it ends with several times less error
+    truth, views = _ahead_with_the_last_turned(rng, 4, 0.1, 120.0)
+    alone = adjust_views(views, MapConfig(), min_px=1.0)
+    waiting = InitialViews(MapConfig())
+    for view in views[1:-1]:
+        waiting.add(view)
+    both = waiting.adjust(views[0], views[-1], lambda index: views[index].T_world_cam)
+    assert np.degrees(vector_angle(alone[:3, 3], truth[-1][:3, 3])) > 40
+    assert np.degrees(vector_angle(both[:3, 3], truth[-1][:3, 3])) < 8
+    assert np.linalg.norm(both[:3, 3]) == pytest.approx(0.3, rel=1e-3)  # its distance from the first kept
 
 
 def test_the_map_keeps_every_keyframe_that_left_its_window_up_to_its_fixed_keyframes(rng):
