@@ -386,7 +386,7 @@ class Odometry:
             sigmas = measurement_sigmas(
                 int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
             )
-            self.two_view.moved(T, np.inf if rel.model == "pnp" else parallax, rel.undecided)
+            self.two_view.moved(T, np.inf if rel.model == "pnp" else parallax)
         else:
             last, velocity = self.estimate(k - 1), self.scale.velocity()
             T = np.linalg.inv(self.graph.pose(kf)) @ (last if velocity is None else last @ velocity)

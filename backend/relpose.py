@@ -52,8 +52,7 @@ class RelativePose:
     identity); ``inliers`` (N,) bool;
     ``plane_normal`` n (n . X_1 = d on the plane) and ``t_over_d`` |t| / d of the homography (also
     filled from the dominant plane for essential poses when metric scale comes from it);
-    ``reason`` explains failures and degenerate cases; ``undecided``: a homography's decompositions fit alike and
-    nothing chose between them (no motion before, as many pairs off the plane fit each): the first was taken."""
+    ``reason`` explains failures and degenerate cases."""
 
     T_c1_c2: np.ndarray
     model: str
@@ -62,7 +61,6 @@ class RelativePose:
     plane_normal: np.ndarray | None = None
     t_over_d: float | None = None
     reason: str = ""
-    undecided: bool = False
 
     @property
     def ok(self) -> bool:
@@ -127,8 +125,7 @@ def homography_pose(
     them than any other; else the one whose plane normal is the plane seen before, ``previous_normal``
     (unit (3,) in camera 1; within ``SAME_PLANE_DEG`` of it and ``PLANE_MARGIN_DEG`` closer than the
     others: a wall does not turn, a path does); else, of those with the most inliers in front of both
-    cameras, the one whose translation agrees best with ``previous_t``; else the first, ``undecided`` where as many
-    pairs off the plane fit each.
+    cameras, the one whose translation agrees best with ``previous_t`` (else the first).
     """
     if H is None:
         H, mask = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
@@ -143,15 +140,13 @@ def homography_pose(
     visible = _visible_shares(rotations, normals, _normalised(p1[inliers], K), _normalised(p2[inliers], K))
     candidates = _in_front(visible, normals)
     rotation_only = max(np.linalg.norm(translations[i]) for i in candidates) < 1e-3
-    lead = np.inf  # how many more pairs off the plane the first candidate fits than the second
     if not rotation_only:
-        candidates, lead = _fitting_off_plane(candidates, rotations, translations, p1[~inliers], p2[~inliers], K)
+        candidates = _fitting_off_plane(candidates, rotations, translations, p1[~inliers], p2[~inliers], K)
         if previous_normal is not None and len(candidates) > 1:
             same = _same_plane([normals[i].ravel() for i in candidates], previous_normal)
             candidates = [candidates[same]] if same is not None else candidates
     most = max(visible[i] for i in candidates)  # undecided: the solutions with the most points in front
     candidates = [i for i in candidates if visible[i] == most]
-    undecided = len(candidates) > 1 and lead == 0 and previous_t is None
     if previous_t is not None and not rotation_only:
         candidates = _along(candidates, rotations, translations, previous_t)
     best = candidates[0]
@@ -162,7 +157,6 @@ def homography_pose(
         rotation_only,
         normals[best].ravel(),
         float(np.linalg.norm(translations[best])),
-        undecided=undecided,
     )
 
 
@@ -187,16 +181,14 @@ def _finite_decompositions(H: np.ndarray, K: np.ndarray) -> tuple[list, list, li
 
 def _fitting_off_plane(
     candidates: list[int], rotations: list, translations: list, off1: np.ndarray, off2: np.ndarray, K: np.ndarray
-) -> tuple[list[int], float]:
+) -> list[int]:
     """``candidates`` ordered by how many pairs off the plane, ``off1`` -> ``off2`` (N, 2) px, fit their
-    epipolar geometry; only the first where it fits ``OFF_PLANE_MARGIN`` more than any other. Also how many more
-    the first fits than the second (infinite for a single candidate)."""
+    epipolar geometry; only the first where it fits ``OFF_PLANE_MARGIN`` more than any other."""
     if len(candidates) < 2:
-        return candidates, np.inf
+        return candidates
     fits = {i: _off_plane_fits(rotations[i], translations[i], off1, off2, K) for i in candidates}
     candidates = sorted(candidates, key=lambda i: fits[i], reverse=True)
-    lead = fits[candidates[0]] - fits[candidates[1]]
-    return (candidates[:1] if lead >= OFF_PLANE_MARGIN else candidates), lead
+    return candidates[:1] if fits[candidates[0]] - fits[candidates[1]] >= OFF_PLANE_MARGIN else candidates
 
 
 def _along(candidates: list[int], rotations: list, translations: list, previous_t: np.ndarray) -> list[int]:

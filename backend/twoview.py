@@ -31,8 +31,7 @@ def _turn(rel: relpose.RelativePose, previous: np.ndarray) -> tuple[float, float
 
 class TwoView:
     """Relative poses between two frames from their matched points, each told the last translation measured and
-    the dominant plane's normal last seen (by the poses that can tell: a homography's decomposition that nothing
-    chose, ``RelativePose.undecided``, tells neither).
+    the dominant plane's normal last seen.
 
     Args:
         method: how a pose is measured (``relpose.estimate``: auto, homography, essential, pycolmap).
@@ -74,8 +73,7 @@ class TwoView:
             plane = relpose.homography_pose(p1, p2, K, previous_normal=normal)  # magnitude from the plane
             rel.t_over_d, rel.plane_normal = plane.t_over_d, plane.plane_normal
         flow = float(np.median(np.linalg.norm(p2 - p1, axis=1))) if len(p1) else 0.0
-        told = rel.ok and not (rel.rotation_only or rel.undecided) and flow >= self.min_flow_px
-        if told and rel.plane_normal is not None:
+        if rel.ok and rel.plane_normal is not None and not rel.rotation_only and flow >= self.min_flow_px:
             self.plane_normal_world = R_world_1 @ rel.plane_normal
         return rel
 
@@ -83,11 +81,10 @@ class TwoView:
         """Camera 2's pose from camera 1 by the essential matrix of the points (K, 2) alone."""
         return relpose.estimate(p1, p2, K, "essential", size=shape)
 
-    def moved(self, T: np.ndarray, flow_px: float = np.inf, undecided: bool = False) -> None:
+    def moved(self, T: np.ndarray, flow_px: float = np.inf) -> None:
         """A pose ``T`` (4, 4) measured over ``flow_px`` (median, px; infinite: located in a map) was taken: its
-        translation, if any, measured over ``min_flow_px`` or more and not ``undecided`` (a homography's first
-        decomposition, taken where nothing chose: ``RelativePose.undecided``), is the last one."""
-        if np.linalg.norm(T[:3, 3]) > 0 and flow_px >= self.min_flow_px and not undecided:
+        translation, if any and measured over ``min_flow_px`` or more, is the last one."""
+        if np.linalg.norm(T[:3, 3]) > 0 and flow_px >= self.min_flow_px:
             self.last_translation = T[:3, 3]
 
     def _gated(

@@ -605,24 +605,6 @@ def test_a_pose_measured_over_little_flow_neither_leads_the_next_nor_names_the_p
         OdometryConfig(vote_flow_px=-1.0)
 
 
-def test_a_homography_whose_decompositions_nothing_tells_apart_neither_leads_the_next_nor_names_the_plane(rng):
-    from deepslam.backend.twoview import TwoView
-
-    T_c1_c2 = pose(np.zeros(3), np.array([0.0, 0.0, 0.4]))  # 40 cm ahead over a floor 1 m below: nothing else
-    floor = np.c_[rng.uniform(-1.5, 1.5, 150), np.full(150, 1.0), rng.uniform(2, 6, 150)]
-    p1, p2 = (project(transform(invert(T), floor), K)[0] + rng.normal(0, 0.2, (150, 2)) for T in (np.eye(4), T_c1_c2))
-    seen = in_image(p1, (120, 160)) & in_image(p2, (120, 160))
-    p1, p2 = p1[seen], p2[seen]
-    flow = float(np.median(np.linalg.norm(p2 - p1, axis=1)))
-    two_view = TwoView("homography", 0.0, plane_lengths=False, min_flow_px=3.0)
-    rel = two_view.measure(p1, p2, K, (120, 160), np.eye(3), np.eye(4))
-    assert flow >= 3.0 and rel.ok and rel.undecided  # both decompositions keep the floor in front
-    two_view.moved(rel.T_c1_c2, flow, rel.undecided)
-    assert two_view.last_translation is None and two_view.plane_normal_world is None
-    told = relpose.homography_pose(p1, p2, K, previous_t=T_c1_c2[:3, 3])  # the motion before chooses
-    assert not told.undecided and _errors(told.T_c1_c2, T_c1_c2)[1] < 5
-
-
 def test_a_pose_from_fewer_pairs_than_the_minimum_is_not_trusted(rng):
     X = np.c_[rng.uniform(-1, 1, (relpose.MIN_INLIERS - 1, 2)), rng.uniform(3, 6, relpose.MIN_INLIERS - 1)]
     T = pose(np.zeros(3), np.array([0.3, 0.0, 0.0]))
