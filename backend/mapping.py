@@ -526,8 +526,8 @@ class InitialViews:
     def adjust(self, first: Keyframe, current: Keyframe, estimate: Callable[[int], np.ndarray]) -> np.ndarray | None:
         """The pose ``T_world_cam`` (4, 4) of ``current`` adjusted together with the keyframe ``first`` (held, with
         ``current``'s distance from it) and up to ``INITIAL_VIEWS`` of the views, each at its latest ``estimate``
-        (``T_world_cam`` (4, 4) of a frame's index), started from its measured pose and from the frame before's
-        (whichever ends with the less error); None where they triangulate too few landmarks (``adjust_views``)."""
+        (``T_world_cam`` (4, 4) of a frame's index), started from its measured pose and also from the frame before's
+        at the same distance (``adjust_views``' ``starts``); None where they triangulate too few landmarks."""
         earlier = [replace(view, T_world_cam=estimate(index)) for index, view in self.views.items()]
         distance = float(np.linalg.norm(current.T_world_cam[:3, 3] - first.T_world_cam[:3, 3]))
         before = _at_distance(estimate(current.index - 1), first.T_world_cam, distance)
