@@ -38,7 +38,7 @@ FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyfra
 INITIAL_VIEWS = 20  # a frame measured two-view while a map waits is adjusted with at most this many views ...
 INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length), ...
 INITIAL_ITERATIONS = 100  # ... until Levenberg-Marquardt converges (10-90 iterations), at most this many
-START_GAIN = 2.0  # another start of those views is taken where it ends with this many times less error a factor
+START_GAIN = 2.0  # another start of those views is taken where it fits them this many times better (``_fit_error``)
 
 
 @dataclass
@@ -468,7 +468,7 @@ def adjust_views(
     the views stay as they are) with the landmarks their tracks triangulate from rays ``min_px`` apart (each from
     the first view that saw it): the first view held, the last one's distance from it kept (gauge and scale).
     ``starts``: other poses (4, 4) the last view may start from, at its distance from the first; the adjustment
-    from the view's own pose is kept unless another ends with ``START_GAIN`` times less error a factor (from a
+    from the view's own pose is kept unless another fits ``START_GAIN`` times better (``_fit_error``; from a
     view measured degrees off, one can settle in a wrong minimum that another start avoids). None where they
     triangulate fewer than ``config.min_located`` landmarks."""
     last = views[-1]
@@ -484,18 +484,38 @@ def adjust_views(
 
 
 def _adjusted_last(views: list[Keyframe], config: MapConfig, min_px: float) -> tuple[np.ndarray, float] | None:
-    """``adjust_views`` from the views as they are: the last one's pose (4, 4) and the final error a factor."""
+    """``adjust_views`` from the views as they are: the last one's pose (4, 4) and how well the adjustment fits their
+    observations (``_fit_error``)."""
     trial = LocalMap(replace(config, window=len(views), fixed_keyframes=0))
     views = [replace(view) for view in views]
     trial.keyframes = views[:1]
     for view in views[1:]:
         trial._triangulate(view, min_px)
         trial.keyframes.append(view)
+    adjusted = trial.adjusted_landmarks()
+    observations = sum(int(np.isin(view.ids, adjusted).sum()) for view in views)
     solved = trial.adjust(len(views) - 1, converge=True) if len(trial.landmarks) >= config.min_located else None
     if solved is None:
         return None
-    graph, result = solved
-    return views[-1].T_world_cam, graph.error(result) / max(graph.size(), 1)
+    return views[-1].T_world_cam, _fit_error(trial, adjusted, observations)
+
+
+def _fit_error(adjusted_map: LocalMap, adjusted: np.ndarray, observations: int) -> float:
+    """How well a bundle adjustment of ``adjusted_map`` fits the ``observations`` its views made of the ``adjusted``
+    landmarks (ids (M,)): Huber's loss of each kept one's distance (px) from its landmark's projection and, for each
+    dropped as an outlier (behind its camera or farther than ``max_reprojection_px``: ``_drop_outliers``), the loss
+    at ``max_reprojection_px``, over the observations: a truncated loss, by which a landmark an adjustment pushed
+    behind its cameras costs as much as any other outlier (gtsam's error takes such a factor's residual as twice the
+    focal length in each coordinate, with no gradient: hundreds of times an inlier's error)."""
+    config = adjusted_map.config
+    loss = gtsam.noiseModel.mEstimator.Huber.Create(config.huber_px)
+    total, kept = 0.0, 0
+    for view in adjusted_map.keyframes:
+        seen = np.isin(view.ids, adjusted)
+        pixels, _ = project(view.T_world_cam, view.K, adjusted_map.points_of(view.ids[seen]))
+        total += sum(loss.loss(float(d)) for d in np.linalg.norm(pixels - view.points[seen], axis=1))
+        kept += int(seen.sum())
+    return (total + (observations - kept) * loss.loss(config.max_reprojection_px)) / max(observations, 1)
 
 
 def _at_distance(T_world_cam: np.ndarray, origin: np.ndarray, distance: float) -> np.ndarray | None:

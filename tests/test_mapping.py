@@ -3,6 +3,7 @@
 from copy import deepcopy
 from dataclasses import dataclass, field, replace
 
+import gtsam
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -11,7 +12,7 @@ from deepslam.backend import drift
 from deepslam.backend.config import MapConfig, OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.evaluation.truth import GroundTruth, run_pipeline
-from deepslam.backend.mapping import InitialViews, Keyframe, LocalMap, adjust_views, project
+from deepslam.backend.mapping import InitialViews, Keyframe, LocalMap, _fit_error, adjust_views, project
 from deepslam.backend.pipeline import Pipeline
 from deepslam.backend.scale import MapScale, with_length
 from deepslam.errors import InputError
@@ -229,6 +230,25 @@ def test_views_adjusted_together_also_start_from_the_frame_before_where_that_end
     assert np.degrees(vector_angle(alone[:3, 3], truth[-1][:3, 3])) > 40
     assert np.degrees(vector_angle(both[:3, 3], truth[-1][:3, 3])) < 8
     assert np.linalg.norm(both[:3, 3]) == pytest.approx(0.3, rel=1e-3)  # its distance from the first kept
+
+
+def test_the_fit_that_chooses_a_start_counts_a_landmark_behind_the_cameras_as_outliers(rng):
+    # gtsam's error takes a factor whose landmark lies behind its camera at a residual of twice the focal length in
+    # each coordinate: two such landmarks outweighed a thousand inliers when adjust_views compared its starts by it
+    world = _world(rng, count=60)
+    views = [_keyframe(i, _sideways(0.1 * i), world, rng, noise=0.0) for i in range(3)]
+    fitted = LocalMap(MapConfig())
+    fitted.keyframes, fitted.landmarks = views, {int(track): world[track].copy() for track in views[0].ids}
+    adjusted = fitted.adjusted_landmarks()
+    observations = sum(int(np.isin(view.ids, adjusted).sum()) for view in views)
+    assert _fit_error(fitted, adjusted, observations) == pytest.approx(0.0, abs=1e-12)
+    behind = int(adjusted[0])
+    fitted.landmarks[behind] = fitted.landmarks[behind] * [1.0, 1.0, -1.0]
+    fitted._drop_outliers()  # as the adjustment does
+    dropped = observations - sum(int(np.isin(view.ids, adjusted).sum()) for view in views)
+    outlier = gtsam.noiseModel.mEstimator.Huber.Create(MapConfig().huber_px).loss(MapConfig().max_reprojection_px)
+    assert dropped == 3
+    assert _fit_error(fitted, adjusted, observations) == pytest.approx(dropped * outlier / observations)
 
 
 def test_the_map_keeps_every_keyframe_that_left_its_window_up_to_its_fixed_keyframes(rng):
