@@ -472,14 +472,14 @@ def adjust_views(
     view measured degrees off, one can settle in a wrong minimum that another start avoids). None where they
     triangulate fewer than ``config.min_located`` landmarks."""
     last = views[-1]
-    adjusted = [
+    results = [
         _adjusted_last([*views[:-1], replace(last, T_world_cam=T)], config, min_px) for T in (last.T_world_cam, *starts)
     ]
-    finished = [result for result in adjusted if result is not None]
+    finished = [result for result in results if result is not None]
     if not finished:
         return None
     best = min(finished, key=lambda result: result[1])
-    measured = adjusted[0]
+    measured = results[0]
     return measured[0] if measured is not None and measured[1] <= START_GAIN * best[1] else best[0]
 
 
