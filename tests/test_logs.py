@@ -192,7 +192,9 @@ def _run_until(out: Path, size: int, options: tuple[str, ...] = ("--frontend", "
     partial = partial_path(out)
     deadline = time.time() + 240
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size < size):
+        assert process.poll() is None, f"the run ended early: {process.communicate()[1].decode()[-2000:]}"
         time.sleep(0.2)
+    assert partial.exists() and partial.stat().st_size >= size, f"the log did not reach {size} bytes in 240 s"
     return process
 
 
