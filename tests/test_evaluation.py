@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from deepslam.backend.config import PipelineConfig
+from deepslam.backend.drift import ate_rmse
 from deepslam.backend.evaluation.consistency import CONSISTENT_PX, TrackObservations, consistent_share
-from deepslam.backend.evaluation.limit import batch_adjust, over_limit
+from deepslam.backend.evaluation.limit import batch_adjust, causal_adjust, over_limit
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.mapping import project
 from deepslam.frontend.config import TrackerConfig
@@ -75,6 +76,17 @@ def test_the_limit_of_noisy_tracks_is_small_and_grows_with_the_noise():
     length = path_length(np.stack(poses))
     figures = [batch_adjust(_observed(poses, _scene(), K, noise=noise)).ate_se3 for noise in (0.5, 2.0)]
     assert 0 < figures[0] < 0.02 * length and figures[1] > 2 * figures[0]
+
+
+def test_the_causal_limit_places_each_frame_without_the_frames_after_it():
+    poses = _circle(12)
+    assert np.allclose(causal_adjust(_observed(poses, _scene(), K, noise=0.0)), np.stack(poses), atol=1e-6)
+    observations = _observed(poses, _scene(), K, noise=0.5)
+    causal, batch = causal_adjust(observations), batch_adjust(observations)
+    assert np.allclose(causal[-1], batch.poses[-1])  # the last frame: one and the same adjustment
+    assert np.allclose(causal[6], batch_adjust(observations.head(7)).poses[-1])
+    assert not np.allclose(causal[6], batch.poses[6], atol=1e-5)  # the frames after frame 6 move it
+    assert ate_rmse(causal, np.stack(poses)) > batch.ate_se3  # less to go on: further from the truth
 
 
 def test_the_limit_drops_the_observations_of_a_track_that_jumped():

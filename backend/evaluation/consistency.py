@@ -31,6 +31,10 @@ class TrackObservations:
         self.K.append(np.asarray(K, np.float64))
         self.poses.append(np.asarray(T_world_cam, np.float64))
 
+    def head(self, frames: int) -> TrackObservations:
+        """The observations of the first ``frames`` frames only (the lists shared, not copied)."""
+        return TrackObservations(self.ids[:frames], self.points[:frames], self.K[:frames], self.poses[:frames])
+
     def projection(self, frame: int) -> np.ndarray:
         """The true K [R | t] (3, 4) of a frame (its position in ``add`` order)."""
         return self.K[frame] @ np.linalg.inv(self.poses[frame])[:3]

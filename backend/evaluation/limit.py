@@ -8,6 +8,10 @@ apart are left out (their depth is unknown). The first camera is held at its tru
 first camera that sees the points ``min_initial_px`` apart keeps its true length: the gauge and the scale, as a
 map's first baseline takes its true length with ``--scale map``. The drift of the adjusted poses is what the
 tracks themselves allow; a pipeline's ATE over it says how much its back-end adds.
+
+The batch adjustment places each frame with the frames after it too, which an online back-end has not seen when it
+reports the frame. ``causal_adjust`` places each frame by the adjustment of the frames up to it: the causal limit,
+between the two.
 """
 
 from __future__ import annotations
@@ -77,6 +81,14 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
     poses = np.stack([result.atPose3(gtsam.symbol("x", index)).matrix() for index in range(len(truth))])
     used = sum(len(frames) for _, frames, _, _ in landmarks)
     return Limit(poses, used, len(landmarks), drift.ate_rmse(poses, truth))
+
+
+def causal_adjust(observations: TrackObservations, config: LimitConfig = LimitConfig()) -> np.ndarray:
+    """Each frame's pose (N, 4, 4) ``T_world_cam`` where ``batch_adjust`` of the frames up to it, and of them
+    alone, places it (the first frame at its true pose): the best an online back-end, which reports a frame
+    before it sees the next, could report with the run's tracks. N adjustments of 1 to N frames."""
+    later = [batch_adjust(observations.head(end), config).poses[-1] for end in range(2, len(observations.poses) + 1)]
+    return np.stack(observations.poses[:1] + later)
 
 
 def over_limit(ate_se3: float, limit_ate_se3: float) -> float:
