@@ -80,7 +80,8 @@ def test_the_limit_of_noisy_tracks_is_small_and_grows_with_the_noise():
 
 def test_the_causal_limit_places_each_frame_without_the_frames_after_it():
     poses = _circle(12)
-    assert np.allclose(causal_adjust(_observed(poses, _scene(), K, noise=0.0)), np.stack(poses), atol=1e-6)
+    exact = causal_adjust(_observed(poses, _scene(), K, noise=0.0))
+    assert np.allclose(exact[5:], np.stack(poses[5:]), atol=1e-6)  # frames 2-4 alone see no point 6 px apart
     observations = _observed(poses, _scene(), K, noise=0.5)
     causal, batch = causal_adjust(observations), batch_adjust(observations)
     assert np.allclose(causal[-1], batch.poses[-1])  # the last frame: one and the same adjustment
@@ -98,6 +99,24 @@ def test_the_limit_drops_the_observations_of_a_track_that_jumped():
     limit = batch_adjust(observations)
     assert limit.tracks >= 140
     assert 20 * limit.tracks - 10 <= limit.observations <= 20 * limit.tracks - 5  # the five, and a few it pulled
+
+
+def test_a_frame_whose_few_observations_leave_its_pose_loose_moves_on_as_a_lost_frame():
+    poses = _circle(20)
+    observations = _observed(poses, _scene(), K, noise=0.5)
+    near = np.array([[0.1, 0.05, 0.5], [-0.12, 0.03, 0.55], [0.03, -0.1, 0.45], [-0.07, -0.06, 0.6], [0, 0.1, 0.5]])
+    pixels = [project(poses[frame], K, near + poses[-1][:3, 3])[0] for frame in (17, 18, 19)]
+    pixels = [p + np.random.default_rng(1).normal(0, 0.5, p.shape) for p in pixels]
+    observations.ids[17] = np.r_[observations.ids[17], np.arange(1000, 1005)]
+    observations.points[17] = np.r_[observations.points[17], pixels[0]]
+    for frame, seen in zip((18, 19), pixels[1:], strict=True):  # only five near points, seen from frame 17 on
+        observations.ids[frame], observations.points[frame] = np.arange(1000, 1005), seen
+    limit = batch_adjust(observations)  # five points each would let the adjustment move them 5-13 cm
+    for frame in (18, 19):  # the step before, again
+        previous, before = limit.poses[frame - 1], limit.poses[frame - 2]
+        assert np.allclose(limit.poses[frame], previous @ np.linalg.inv(before) @ previous)
+    assert limit.ate_se3 < 0.015
+    assert not np.allclose(limit.poses[17], poses[17], atol=1e-4)  # the frames before are adjusted
 
 
 def test_a_rotation_gives_the_limit_no_track_to_adjust():

@@ -4,9 +4,12 @@ One batch bundle adjustment of every frame and every track observation of a run,
 camera at its true pose, each track's point triangulated from all its observations with the true poses. An
 observation farther than ``max_reprojection_px`` from that point's projection is dropped (a track that jumped
 to another point: a back-end that knew which ones did); tracks seen from less than ``min_triangulation_px``
-apart are left out (their depth is unknown). The first camera is held at its true pose and its distance to the
-first camera that sees the points ``min_initial_px`` apart keeps its true length: the gauge and the scale, as a
-map's first baseline takes its true length with ``--scale map``. The drift of the adjusted poses is what the
+apart are left out (their depth is unknown). A frame with fewer than ``min_observations`` observations left is
+not adjusted (so few leave it loose, and Levenberg-Marquardt would move it metres): as a lost frame, it moves on
+from the frame before by the step before that. The
+first camera is held at its true pose and its distance to the first adjusted camera that sees the points
+``min_initial_px`` apart keeps its true length: the gauge and the scale, as a map's first baseline takes its true
+length with ``--scale map``. The drift of the adjusted poses is what the
 tracks themselves allow; a pipeline's ATE over it says how much its back-end adds.
 
 The batch adjustment places each frame with the frames after it too, which an online back-end has not seen when it
@@ -38,6 +41,9 @@ class LimitConfig:
     min_initial_px: float = 10.0  # the first baseline, whose true length is kept, spans this much at the points
     huber_px: float = 1.345  # the robust loss (px, sigma 1 px)
     iterations: int = 100  # Levenberg-Marquardt's most iterations
+    # a frame with fewer observations is not adjusted: they do not determine its pose (the map's PnP needs as many,
+    # MapConfig.min_located), and Levenberg-Marquardt would move it anywhere; it moves on by the step before
+    min_observations: int = 12
 
 
 @dataclass
@@ -56,16 +62,17 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
     started at the truth."""
     truth, focal = np.stack(observations.poses), float(observations.K[0][0, 0])
     projections = np.stack([observations.projection(frame) for frame in range(len(truth))])
-    landmarks = []  # (track id, frames (M,), pixels (M, 2), point (3,))
-    for track, frames, pixels in observations.tracks():
-        point, kept = _initial_point(pixels, projections[frames], truth[frames, :3, 3], focal, config)
-        if point is not None:
-            landmarks.append((track, frames[kept], pixels[kept], point))
+    landmarks = _landmarks(observations, truth, projections, focal, config)
+    placed = _placed_frames(landmarks, len(truth), config.min_observations)
+    landmarks = [
+        (track, frames[placed[frames]], pixels[placed[frames]], point) for track, frames, pixels, point in landmarks
+    ]
+    landmarks = [landmark for landmark in landmarks if len(landmark[1]) >= 2]
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    for index, T in enumerate(truth):
-        values.insert(gtsam.symbol("x", index), gtsam.Pose3(T))
+    for index in np.flatnonzero(placed):
+        values.insert(gtsam.symbol("x", index), gtsam.Pose3(truth[index]))
     points = np.array([point for *_, point in landmarks]).reshape(-1, 3)
-    _hold_gauge(graph, truth, _first_baseline(truth, points, focal, config.min_initial_px))
+    _hold_gauge(graph, truth, _first_baseline(truth, points, focal, config.min_initial_px, placed))
     noise, calibrations = pixel_noise(config.huber_px), [calibration(K) for K in observations.K]
     for track, frames, pixels, point in landmarks:
         values.insert(gtsam.symbol("l", track), gtsam.Point3(point))
@@ -78,9 +85,38 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(config.iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    poses = np.stack([result.atPose3(gtsam.symbol("x", index)).matrix() for index in range(len(truth))])
+    poses = truth.copy()  # the first frame, and the second where it is not adjusted (no step before it is known)
+    for index in range(1, len(truth)):
+        if placed[index]:
+            poses[index] = result.atPose3(gtsam.symbol("x", index)).matrix()
+        elif index > 1:  # moves on by the step before, as a lost frame does
+            poses[index] = poses[index - 1] @ np.linalg.inv(poses[index - 2]) @ poses[index - 1]
     used = sum(len(frames) for _, frames, _, _ in landmarks)
     return Limit(poses, used, len(landmarks), drift.ate_rmse(poses, truth))
+
+
+def _landmarks(
+    observations: TrackObservations, truth: np.ndarray, projections: np.ndarray, focal: float, config: LimitConfig
+) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Each track that makes a landmark (``_initial_point``): its id, the frames (M,) and pixels (M, 2) of the
+    observations it keeps, and its point (3,)."""
+    landmarks = []
+    for track, frames, pixels in observations.tracks():
+        point, kept = _initial_point(pixels, projections[frames], truth[frames, :3, 3], focal, config)
+        if point is not None:
+            landmarks.append((track, frames[kept], pixels[kept], point))
+    return landmarks
+
+
+def _placed_frames(landmarks: list[tuple], frames: int, min_observations: int) -> np.ndarray:
+    """Which of the ``frames`` the adjustment places (frames,) bool: those with ``min_observations`` observations of
+    the ``landmarks``, and the first frame, which holds the gauge."""
+    counts = np.zeros(frames, int)
+    for _, seen, _, _ in landmarks:
+        np.add.at(counts, seen, 1)
+    placed = counts >= min_observations
+    placed[0] = True
+    return placed
 
 
 def causal_adjust(observations: TrackObservations, config: LimitConfig = LimitConfig()) -> np.ndarray:
@@ -97,11 +133,13 @@ def over_limit(ate_se3: float, limit_ate_se3: float) -> float:
     return ate_se3 / limit_ate_se3 if limit_ate_se3 > 0 else float("nan")
 
 
-def _first_baseline(truth: np.ndarray, points: np.ndarray, focal: float, min_px: float) -> int | None:
-    """The first frame whose true distance from frame 0 spans ``min_px`` (radians x ``focal``) at the median
-    depth of the ``points`` (M, 3) in frame 0, as a map's first baseline must; the farthest frame from frame 0
-    where none does; None where no frame moved."""
-    distances = np.linalg.norm(truth[:, :3, 3] - truth[0, :3, 3], axis=1)
+def _first_baseline(
+    truth: np.ndarray, points: np.ndarray, focal: float, min_px: float, placed: np.ndarray
+) -> int | None:
+    """The first of the ``placed`` frames ((N,) bool) whose true distance from frame 0 spans ``min_px`` (radians x
+    ``focal``) at the median depth of the ``points`` (M, 3) in frame 0, as a map's first baseline must; the
+    farthest of them from frame 0 where none does; None where none moved."""
+    distances = np.linalg.norm(truth[:, :3, 3] - truth[0, :3, 3], axis=1) * placed
     if not distances.max() > 0:
         return None
     depth = np.median(project(truth[0], np.eye(3), points)[1]) if len(points) else 1.0
