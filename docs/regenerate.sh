@@ -41,7 +41,7 @@ deepslam eval pipeline --out docs/eval/pipeline_map_paths --jobs "$JOBS" --world
 deepslam eval pipeline --out docs/eval/pipeline_map_follow --jobs "$JOBS" --worlds room clutter \
   --trajectories circle forward --noise 0 0.5 --lighting 0 --seeds 3 --frontends magic --follow --scale map
 python examples/track_consistency.py > docs/eval/track_consistency.txt
-# each run's ATE over its limit, over the whole run and from the map's first frame on
+# each run's ATE over its limit, over the whole run and from the map's first frame on, and over the causal limit
 for F in oracle classical magic; do python examples/limit_split.py --frontend $F > docs/eval/limit_split_$F.txt; done
 # the map's bundle adjustment (gtsam) beside pycolmap's on the same windows
 python examples/bundle_adjusters.py > docs/eval/bundle_adjusters.txt
