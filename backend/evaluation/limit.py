@@ -128,8 +128,8 @@ def causal_adjust(observations: TrackObservations, config: LimitConfig = LimitCo
 
 
 def over_limit(ate_se3: float, limit_ate_se3: float) -> float:
-    """A run's ATE SE3 over its limit's; NaN where the limit is 0 or unknown (its tracks made no landmark, as
-    when the camera only turns, and the adjustment left the truth as it was)."""
+    """A run's ATE SE3 over its limit's; NaN where the limit is 0 or unknown (as where the camera only turns: its
+    tracks make no landmark, and every frame keeps the first frame's true position)."""
     return ate_se3 / limit_ate_se3 if limit_ate_se3 > 0 else float("nan")
 
 
