@@ -32,6 +32,7 @@ import numpy as np
 
 from deepslam.backend.config import MapConfig
 from deepslam.geometry import vector_angle
+from deepslam.interrupts import import_pycolmap
 
 PNP_ITERATIONS = 200  # PnP RANSAC's iterations
 FIXED_SIGMA = 1e-6  # rad and m: the prior that holds the window's oldest keyframe (a hard constraint would need QR)
@@ -379,7 +380,7 @@ def adjust_with_pycolmap(
     (constant poses): ``LocalMap.adjust``'s problem, with its Huber loss and iteration cap, one thread. The first
     view holds the gauge; the held views hold the scale with it, or where there are none, the second view's
     distance from the first is kept (``_keep_distance``), as ``LocalMap.adjust`` keeps it."""
-    import pycolmap
+    pycolmap = import_pycolmap()
 
     reconstruction, problem, points = _pycolmap_problem(moving + held, len(moving), landmarks, adjusted)
     options = pycolmap.BundleAdjustmentOptions(refine_focal_length=False, refine_extra_params=False)
@@ -422,7 +423,7 @@ def _pycolmap_problem(views: list[Keyframe], moving: int, landmarks: dict[int, n
     """pycolmap's reconstruction of ``views`` (image ids from 1; the first ``moving`` of them move but the first, the
     rest are held constant) observing the ``adjusted`` landmarks, its adjustment config, and each landmark's point
     id."""
-    import pycolmap
+    pycolmap = import_pycolmap()
 
     K = views[0].K
     reconstruction, problem, seen, points = pycolmap.Reconstruction(), pycolmap.BundleAdjustmentConfig(), {}, {}

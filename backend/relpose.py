@@ -22,6 +22,7 @@ import numpy as np
 from deepslam.backend.config import METHODS, MIN_MATCHES
 from deepslam.errors import InputError
 from deepslam.geometry import vector_angle
+from deepslam.interrupts import import_pycolmap
 
 STATIC_FLOW_PX = 0.3  # a median flow below this (px): no motion
 MIN_INLIER_RATIO = 0.3  # a model that explains a smaller share of the matches is not trusted ...
@@ -318,7 +319,7 @@ def pycolmap_pose(
 ) -> RelativePose:
     """Relative pose from pycolmap's calibrated two-view geometry (its own model selection);
     ``max_error`` is its RANSAC threshold in pixels."""
-    import pycolmap
+    pycolmap = import_pycolmap()
 
     h, w = size
     # COLMAP puts the centre of the top-left pixel at (0.5, 0.5): shift points and principal point

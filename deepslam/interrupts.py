@@ -66,3 +66,17 @@ def checkpoint() -> None:
     may stop between its steps."""
     if _ACTIVE:
         _ACTIVE[-1].checkpoint()
+
+
+def import_pycolmap():
+    """pycolmap, imported so that SIGTERM still reaches Python's handler. Importing it installs glog's failure
+    handler for SIGTERM from C, which ends the process at once (a log in progress left unfinished) while
+    ``signal.getsignal`` still names Python's handler; that handler is installed again here (from the main thread
+    only, where Python handles signals)."""
+    import pycolmap
+
+    if threading.current_thread() is threading.main_thread():
+        handler = signal.getsignal(signal.SIGTERM)
+        if handler is not None:  # None: a handler installed from C before Python's, nothing to put back
+            signal.signal(signal.SIGTERM, handler)
+    return pycolmap

@@ -325,6 +325,21 @@ def test_held_signals_reach_their_handler_at_a_checkpoint_or_the_end_of_the_bloc
         signal.signal(signal.SIGTERM, previous)
 
 
+_SIGTERM_AFTER_PYCOLMAP = """
+import os, signal, sys, time
+signal.signal(signal.SIGTERM, lambda number, frame: sys.exit(143))
+from deepslam.interrupts import import_pycolmap
+import_pycolmap()  # installs glog's SIGTERM handler from C, as the map's first window adjustment does
+os.kill(os.getpid(), signal.SIGTERM)
+time.sleep(5)
+"""
+
+
+def test_sigterm_reaches_python_after_pycolmap_is_imported():
+    process = subprocess.run([sys.executable, "-c", _SIGTERM_AFTER_PYCOLMAP], capture_output=True, timeout=120)
+    assert process.returncode == 143, process.stderr.decode()[-2000:]  # glog's handler ends it at -15
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "stop, code, word", [(signal.SIGINT, 130, b"interrupted"), (signal.SIGTERM, 143, b"terminated")]
