@@ -49,7 +49,7 @@ from deepslam.backend.scale import MapScale, PlaneScale, StepLengths, with_lengt
 from deepslam.backend.twoview import TwoView
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
-from deepslam.geometry import in_image, rotation_angle
+from deepslam.geometry import constant_motion, in_image, rotation_angle
 from deepslam.interrupts import checkpoint
 
 BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
@@ -359,7 +359,7 @@ class Odometry:
             return None
         last, before = (self._in_map(self.keyframe, self.estimate(self.frames - step)) for step in (1, 2))
         ids, world = self.map.points()
-        pixels, depth = project(last @ np.linalg.inv(before) @ last, K, world)
+        pixels, depth = project(constant_motion(before, last), K, world)
         seen = (depth > 0) & in_image(pixels, shape)
         return Predicted(ids[seen], pixels[seen])
 

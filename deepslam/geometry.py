@@ -48,6 +48,12 @@ def path_length(poses: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(np.asarray(poses)[:, :3, 3], axis=0), axis=1).sum())
 
 
+def constant_motion(before: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """The pose (4, 4) ``T_world_cam`` after ``last`` where the camera repeats its step from ``before`` to ``last``
+    (both (4, 4)): constant motion."""
+    return last @ np.linalg.inv(before) @ last
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Angle (radians) of rotation matrices (..., 3, 3)."""
     return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))

@@ -27,7 +27,7 @@ import numpy as np
 from deepslam.backend import drift
 from deepslam.backend.evaluation.consistency import TrackObservations, triangulate
 from deepslam.backend.mapping import calibration, pixel_noise, project
-from deepslam.geometry import vector_angle
+from deepslam.geometry import constant_motion, vector_angle
 
 GAUGE_SIGMA = 1e-4  # rad and m, and a share of the first baseline: tighter, and Levenberg-Marquardt stalls
 
@@ -90,7 +90,7 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
         if placed[index]:
             poses[index] = result.atPose3(gtsam.symbol("x", index)).matrix()
         elif index > 1:  # moves on by the step before, as a lost frame does
-            poses[index] = poses[index - 1] @ np.linalg.inv(poses[index - 2]) @ poses[index - 1]
+            poses[index] = constant_motion(poses[index - 2], poses[index - 1])
     used = sum(len(frames) for _, frames, _, _ in landmarks)
     return Limit(poses, used, len(landmarks), drift.ate_rmse(poses, truth))
 
