@@ -9,20 +9,16 @@ two-view; a front-end whose maps start late loses most of its ground there.
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
 from deepslam.backend import drift
 from deepslam.backend.config import OdometryConfig, PipelineConfig
-from deepslam.backend.evaluation.config import SweepConfig
+from deepslam.backend.evaluation.config import GridRuns
 from deepslam.backend.evaluation.limit import causal_adjust
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.frontend.config import TrackerConfig
 from deepslam.sim.scenario import Scenario, ScenarioConfig
-from deepslam.sim.trajectories import KINDS
-from deepslam.sim.world import WORLDS
 
 
 def split(world: str, trajectory: str, frontend: str, seed: int, frames: int) -> tuple[int, float, float, float]:
@@ -43,24 +39,14 @@ def split(world: str, trajectory: str, frontend: str, seed: int, frames: int) ->
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frontend", default="magic", choices=("magic", "classical", "oracle"))
-    parser.add_argument("--worlds", nargs="+", default=["plane", "room", "clutter"], choices=WORLDS)
-    parser.add_argument("--trajectories", nargs="+", default=["circle", "forward"], choices=KINDS)
-    parser.add_argument("--seeds", type=int, default=3, help="seeds 0 to N - 1 (default: 3)")
-    parser.add_argument("--frames", type=int, default=60, help="frames a run (default: 60)")
-    args = parser.parse_args()
-    if args.seeds < 1 or args.frames < 3:
-        parser.error(f"--seeds must be at least 1 and --frames at least 3, got {args.seeds} and {args.frames}")
+    grid = GridRuns.parse(__doc__.split("\n\n")[0], frontend="magic")
     torch.set_num_threads(1)  # as the sweep's runs: the same seed, the same run
-    cells = SweepConfig(worlds=tuple(args.worlds), trajectories=tuple(args.trajectories)).cells()
     print(f"{'world':<7} {'path':<8} seed  map at  /limit whole  /limit from the map on  /causal limit whole")
     splits = []
-    for world, path in dict.fromkeys(cell[:2] for cell in cells):  # no forward path in the plane world
-        for seed in range(args.seeds):
-            start, whole, after, causal = split(world, path, args.frontend, seed, args.frames)
-            splits.append((whole, after, causal))
-            print(f"{world:<7} {path:<8} {seed:>4}  {start:>6}  {whole:>12.2f}  {after:>22.2f}  {causal:>19.2f}")
+    for world, path, seed in grid.runs:
+        start, whole, after, causal = split(world, path, grid.frontend, seed, grid.frames)
+        splits.append((whole, after, causal))
+        print(f"{world:<7} {path:<8} {seed:>4}  {start:>6}  {whole:>12.2f}  {after:>22.2f}  {causal:>19.2f}")
     whole, after, causal = np.array(splits).T
     mapped = int(np.isfinite(after).sum())
     print(

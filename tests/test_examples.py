@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 
@@ -86,6 +87,26 @@ def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(ca
     with pytest.raises(SystemExit) as exit_info:  # a usage error, not a traceback
         runpy.run_path(str(EXAMPLES / "limit_split.py"), run_name="__main__")
     assert exit_info.value.code == 2 and "--seeds must be at least 1" in capsys.readouterr().err
+
+
+def test_first_frames_example_recovers_a_direction_given_the_rotation_and_bins_frames_by_flow(capsys, monkeypatch):
+    example = runpy.run_path(str(EXAMPLES / "first_frames.py"))
+    rng = np.random.default_rng(0)
+    points_1 = np.c_[rng.uniform(-1, 1, (40, 2)), rng.uniform(2, 6, 40)]
+    R_2_1 = Rotation.from_euler("xyz", [2.0, -5.0, 1.0], degrees=True).as_matrix()
+    t = np.array([0.3, -0.1, 0.5])
+    points_2 = points_1 @ R_2_1.T + t
+    direction = example["direction_given_rotation"](R_2_1, points_1 / points_1[:, 2:], points_2 / points_2[:, 2:])
+    np.testing.assert_allclose(direction, t / np.linalg.norm(t), atol=1e-9)  # the sign too: points in front
+    argv = ["first_frames.py", "--worlds", "clutter", "--trajectories", "forward", "--seeds", "1", "--frames", "30"]
+    monkeypatch.setattr("sys.argv", argv)
+    runpy.run_path(str(EXAMPLES / "first_frames.py"), run_name="__main__")
+    _, header, *rows = capsys.readouterr().out.splitlines()
+    assert header.split()[:2] == ["flow", "px"] and rows
+    values = np.array([row.replace("/", " ").split()[1:] for row in rows], float)  # frames, then median / 90th
+    assert values[:, 0].sum() >= 10  # the map starts after frame 10 on this path
+    medians, top = values[:, 1::2], values[:, 2::2]
+    assert np.all(medians <= top) and np.all(medians[:, :3] <= 180) and np.all(medians[:, 3] > 0)
 
 
 def test_bundle_adjusters_example_solves_the_maps_windows_with_gtsam_and_pycolmap(capsys, monkeypatch):

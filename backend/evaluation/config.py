@@ -3,13 +3,14 @@ measures: plain dataclasses that import no solver; the functions take their defa
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, field
 
 from deepslam.backend.config import Method, OdometryConfig, Scale
 from deepslam.frontend.config import Frontend
 from deepslam.sim import trajectories
 from deepslam.sim.scenario import MAX_FRAMES
-from deepslam.sim.world import WorldName
+from deepslam.sim.world import WORLDS, WorldName
 
 
 @dataclass(frozen=True)
@@ -111,3 +112,49 @@ class DriftConfig:
             "best any back-end could do with them) and print its ATE and the log's ATE over it"
         },
     )
+
+
+@dataclass(frozen=True)
+class GridRuns:
+    """Clean runs one by one over worlds x trajectories x seeds, as the examples that measure the map's grid take
+    them from their command line (``parse``)."""
+
+    frontend: Frontend
+    frames: int
+    runs: list[tuple[WorldName, trajectories.Kind, int]]  # (world, path, seed) in table order
+
+    @classmethod
+    def parse(cls, description: str, frontend: Frontend) -> GridRuns:
+        """The runs ``--frontend`` (default ``frontend``), ``--worlds``, ``--trajectories``, ``--seeds`` and
+        ``--frames`` name (no forward path in the plane world); a usage error exits with status 2."""
+        parser = argparse.ArgumentParser(description=description)
+        parser.add_argument(
+            "--frontend",
+            default=frontend,
+            choices=("magic", "classical", "oracle"),
+            help=f"the front-end (default: {frontend})",
+        )
+        parser.add_argument(
+            "--worlds",
+            nargs="+",
+            default=["plane", "room", "clutter"],
+            choices=WORLDS,
+            help="simulated worlds (default: all three)",
+        )
+        parser.add_argument(
+            "--trajectories",
+            nargs="+",
+            default=["circle", "forward"],
+            choices=trajectories.KINDS,
+            help="camera paths (default: circle forward; forward is left out in the plane world)",
+        )
+        parser.add_argument("--seeds", type=int, default=3, help="seeds 0 to N - 1 (default: 3)")
+        parser.add_argument("--frames", type=int, default=60, help="frames a run (default: 60)")
+        args = parser.parse_args()
+        if args.seeds < 1 or args.frames < 3:
+            parser.error(f"--seeds must be at least 1 and --frames at least 3, got {args.seeds} and {args.frames}")
+        cells = SweepConfig(worlds=tuple(args.worlds), trajectories=tuple(args.trajectories)).cells()
+        paths = dict.fromkeys(cell[:2] for cell in cells)
+        return cls(
+            args.frontend, args.frames, [(world, path, seed) for world, path in paths for seed in range(args.seeds)]
+        )
