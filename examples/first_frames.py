@@ -51,11 +51,12 @@ def measured_frames(world: str, trajectory: str, frontend: str, seed: int, frame
     reported direction error deg, direction error with the true rotation deg, position error mm)."""
     scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
     config = PipelineConfig(TrackerConfig(frontend), OdometryConfig(scale="map"))
-    results, truth, K = [], [], []
+    results = []
     output = run_frames(
         simulated_frames(scenario), config, total=len(scenario), progress=False, seed=seed,
-        sink=lambda frame, result, _: (results.append(result), truth.append(frame.T_world_cam), K.append(frame.K)),
+        sink=lambda _, result, __: results.append(result),
     )  # fmt: skip
+    truth, K = output.truth, output.observations.K
     measured = []
     for result in results[1:]:
         relative = result.relative
