@@ -454,6 +454,8 @@ def test_sweep_keeps_every_run_and_summarises_textured_and_corner_poor_seeds_apa
     assert float(clean[4]) == pytest.approx(np.median(share), abs=0.005)
     assert float(clean[5]) == pytest.approx(np.mean(share), abs=0.005)
     assert float(clean[6]) == pytest.approx(rows[0]["median_ate_over_limit"], abs=0.005)
+    final = [100 * r["final_ate_se3"] / r["path_length"] for r in runs if not r["corner_poor"]]  # the graph at the end
+    assert float(clean[7]) == pytest.approx(np.median(final), abs=0.005) and np.isfinite(float(clean[8]))
     assert int(clean[-1]) == sum(r["lost_frames"] for r in runs)
     written = sweep.save(tmp_path)
     assert [p.name for p in written] == ["pipeline_ate_vs_noise.png", "pipeline.txt", "pipeline.json"]
