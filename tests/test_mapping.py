@@ -482,6 +482,25 @@ def test_frames_before_the_map_are_adjusted_together_not_measured_one_by_one():
     assert np.median(adjusted) < 0.5 * np.median(two_view), (np.median(adjusted), np.median(two_view))
 
 
+def test_the_final_trajectory_places_the_frames_before_a_map_where_the_map_locates_them():
+    # forward motion: the map starts at frame 24; measured two-view over a few pixels, the frames before it are
+    # placed up to 15 cm off online, and the map's landmarks locate them once it stands
+    scenario = Scenario(ScenarioConfig(world="clutter", trajectory="forward", frames=30))
+    truth, online, starts = [], [], []
+    for pipeline, frame, result in run_pipeline(simulated_frames(scenario), PipelineConfig(TrackerConfig("oracle"))):
+        truth.append(frame.T_world_cam)
+        online.append(result.T_world_cam)
+        starts += [result.index] if result.keyframe_reason == "a map starts" else []
+        odometry = pipeline.odometry
+    final = odometry.poses()  # what Pipeline.trajectory returns
+    located = sorted(odometry.located_later)
+    assert len(starts) == 1 and len(located) >= 15 and 0 < min(located) and max(located) < starts[0]
+    assert not odometry.before_map  # kept only while a map waits
+    for index in set(range(30)) - set(located):
+        np.testing.assert_array_equal(final[index], odometry.estimate(index))
+    assert drift.ate_rmse(final, np.array(truth)) < 0.6 * drift.ate_rmse(np.array(online), np.array(truth))
+
+
 @dataclass
 class _Thinned(OracleTracker):
     """The oracle, keeping only the first ``thin[i]`` tracks of frame i (0: none, as in a blank image)."""
