@@ -201,8 +201,8 @@ def run_frames(
     """Process frames in order through the pipeline of ``config`` (with ``tracker`` instead of its
     front-end if given, fed by ``ground_truth`` if it is an oracle of one's own; ``seed``: the oracle's
     noise), handing each (frame, result, diagnostics) to ``sink`` as soon as it is done (Ctrl-C and
-    SIGTERM take effect between frames). ``RunOutput.pipeline.trajectory()`` has the final smoothed
-    trajectory."""
+    SIGTERM take effect between frames). ``RunOutput.pipeline.trajectory()`` has the final trajectory
+    (refined by later frames)."""
     truth, online, diagnostics, errors, pair_errors, frame_ms, inlier_shares = [], [], [], [], [], [], []
     observations = TrackObservations()
     previous: tuple[TrueFrame, Tracks] | None = None
@@ -261,7 +261,7 @@ def simulate(
     """Run one simulated trajectory end to end (logged to ``out`` if given); ``limit``: its summary has the
     batch bundle adjustment's limit too (``RunOutput.summary``).
 
-    Returns {"estimate", "truth", "summary" (``RunOutput.summary``), "smoothed_ate_se3", "scale", "pipeline",
+    Returns {"estimate", "truth", "summary" (``RunOutput.summary``), "final_ate_se3", "scale", "pipeline",
     "world", "diagnostics"}.
     """
     if out is not None:
@@ -296,7 +296,7 @@ def simulate(
         "estimate": output.estimate,
         "truth": output.truth,
         "summary": output.summary(limit=limit),
-        "smoothed_ate_se3": drift.ate_rmse(output.pipeline.trajectory(), output.truth),
+        "final_ate_se3": drift.ate_rmse(output.pipeline.trajectory(), output.truth),
         "scale": odometry_config.scale,
         "pipeline": output.pipeline,
         "world": scenario.world,

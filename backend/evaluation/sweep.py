@@ -58,7 +58,7 @@ def run_cell(piece: tuple) -> dict:
         "lost_frames": figures["lost_frames"],
         "track_error_px": figures["track_error_px"],
         "limit_ate_se3": figures.get("limit_ate_se3", float("nan")),
-        "final_ate_se3": result["smoothed_ate_se3"],
+        "final_ate_se3": result["final_ate_se3"],
     }
 
 
