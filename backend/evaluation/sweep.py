@@ -122,15 +122,19 @@ def _shares(runs: list[dict]) -> dict[str, list[float]]:
     """Each run's ATE as % of its path, |log scale drift| and ATE over its limit (``limit``; of the runs that
     have one); the same of its final trajectory (``final_``; of the runs that record it)."""
     final = [r for r in runs if "final_ate_se3" in r]
-    ratios = [over_limit(r["ate_se3"], r["limit_ate_se3"]) for r in runs]
-    final_ratios = [over_limit(r["final_ate_se3"], r["limit_ate_se3"]) for r in final]
     return {
         "ate_pct": [100 * r["ate_se3"] / r["path_length"] for r in runs],
         "log_scale_drift": [abs(np.log(r["scale_drift"])) for r in runs],
-        "ate_over_limit": [ratio for ratio in ratios if np.isfinite(ratio)],
+        "ate_over_limit": _over_limits(runs, "ate_se3"),
         "final_ate_pct": [100 * r["final_ate_se3"] / r["path_length"] for r in final],
-        "final_over_limit": [ratio for ratio in final_ratios if np.isfinite(ratio)],
+        "final_over_limit": _over_limits(final, "final_ate_se3"),
     }
+
+
+def _over_limits(runs: list[dict], key: str) -> list[float]:
+    """Each run's ATE under ``key`` over its limit's, of the runs whose limit adjusted something (a finite ratio)."""
+    ratios = (over_limit(r[key], r["limit_ate_se3"]) for r in runs)
+    return [ratio for ratio in ratios if np.isfinite(ratio)]
 
 
 def matrix_lines(rows: list[dict]) -> list[str]:
