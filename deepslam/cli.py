@@ -373,6 +373,8 @@ def _pipeline_commands(commands) -> None:
         help="a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM or EuRoC folder, or a video file",
     )
     replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
+    for parser in (run, replay):
+        parser.set_defaults(runs_pipeline=True)
     report = _command(commands, "report", "one self-contained HTML page comparing runs from their logs", _report)
     report.add_argument("logs", type=Path, nargs="+", help="MCAP logs written by deepslam run or replay")
     report.add_argument("--out", type=Path, default=Path("out/report.html"), help="the HTML file to write")
@@ -437,7 +439,7 @@ def _eval_commands(commands) -> None:
             help="also evaluate MagicPoint from these weights files or training checkpoints, each named by its path "
             "(one pass, S-HA's own sub-pixel peaks)",
         )
-    _command(
+    sweep = _command(
         evals,
         "pipeline",
         "drift over worlds x front-ends x noise, averaged over seeds",
@@ -446,6 +448,7 @@ def _eval_commands(commands) -> None:
         TrackerConfig,
         exclude=("frontend",),
     )
+    sweep.set_defaults(runs_pipeline=True)
     for parser in evals.choices.values():
         parser.add_argument("--out", type=Path, default=Path("out/eval"), help="folder for the .txt, .json and plots")
         add_options(parser, Workers)
@@ -484,6 +487,7 @@ def _bench_commands(commands) -> None:
         TrackerConfig,
     )
     pipeline.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the .txt and .json")
+    pipeline.set_defaults(runs_pipeline=True)
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -536,6 +540,10 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:  # named by the command they were given to
         getattr(args, "parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     _configure_logging(args)
+    if getattr(args, "runs_pipeline", False):  # before Python's SIGTERM handler is in place (``import_pycolmap``)
+        from deepslam.interrupts import import_pycolmap
+
+        import_pycolmap()
     signal.signal(signal.SIGTERM, _terminate)
     import cv2
     import torch

@@ -72,7 +72,8 @@ def import_pycolmap():
     """pycolmap, imported so that SIGTERM still reaches Python's handler. Importing it installs glog's failure
     handler for SIGTERM from C, which ends the process at once (a log in progress left unfinished) while
     ``signal.getsignal`` still names Python's handler; that handler is installed again here (from the main thread
-    only, where Python handles signals)."""
+    only, where Python handles signals). A SIGTERM during the import itself meets glog's: the commands that run
+    the pipeline import pycolmap before they open a log or handle SIGTERM (``cli.main``)."""
     import pycolmap
 
     if threading.current_thread() is threading.main_thread():

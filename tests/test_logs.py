@@ -373,6 +373,40 @@ def test_sigterm_ends_a_run_of_slow_frames_within_seconds(tmp_path):
     assert len(list(read_frames(out))) >= 1  # a finished log
 
 
+# ends the process with SIGTERM as pycolmap's import finishes, before ``import_pycolmap`` puts Python's handler back:
+# the one moment glog's handler, which ends the process at once, is in place
+_SIGTERM_AS_PYCOLMAP_LOADS = """
+import importlib.abc, importlib.util, os, signal, sys
+
+
+class SigtermOnImport(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name != "pycolmap":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        load = spec.loader.exec_module
+        spec.loader.exec_module = lambda module: (load(module), os.kill(os.getpid(), signal.SIGTERM))
+        return spec
+
+
+sys.meta_path.insert(0, SigtermOnImport())
+from deepslam.cli import main
+
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_sigterm_as_pycolmap_loads_never_leaves_a_log_unfinished(tmp_path):
+    # glog's SIGTERM handler ends the process at once: a run loads pycolmap before it opens its log (not at its
+    # map's first window adjustment, a few frames in)
+    out = tmp_path / "run.mcap"
+    command = ["run", "--frontend", "oracle", "--frames", "30", "--out", str(out)]
+    ended = subprocess.run([sys.executable, "-c", _SIGTERM_AS_PYCOLMAP_LOADS, *command], capture_output=True)
+    assert ended.returncode == -signal.SIGTERM, ended.stderr.decode()[-2000:]
+    assert not out.exists() and not partial_path(out).exists()
+
+
 def test_outputs_never_clobber_inputs_or_each_other(oracle_log, tmp_path):
     path, _ = oracle_log
     original = path.read_bytes()
