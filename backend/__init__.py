@@ -4,8 +4,8 @@
 
 - ``twoview``: a frame's pose from a keyframe by the homography or essential matrix of their shared tracks
   (``relpose`` fits and decomposes them with OpenCV): to start a map, and where the map cannot locate a frame;
-- ``mapping``: the local map (landmarks, PnP, bundle adjustment) and the frames adjusted together while a map waits
-  to start (``InitialViews``);
+- ``mapping``: the local map (landmarks, PnP, bundle adjustment) and the frames a map waits through: adjusted
+  together until it starts, then located in it (``InitialViews``);
 - ``keyframes``: the one keyframe decision (``KeyframePolicy``) and the odometry's ``Phase``;
 - ``scale``: the metric length of two-view steps (``MapScale``, ``PlaneScale``);
 - ``graph``: the ISAM2 pose graph of keyframes and of the frames measured two-view.

@@ -40,6 +40,7 @@ INITIAL_VIEWS = 20  # a frame measured two-view while a map waits is adjusted wi
 INITIAL_TRIANGULATION_PX = 1.0  # ... and the landmarks of rays this far apart (radians x focal length), ...
 INITIAL_ITERATIONS = 100  # ... until Levenberg-Marquardt converges (10-90 iterations), at most this many
 START_GAIN = 2.0  # another start of those views is taken where it fits them this many times better (``_fit_error``)
+KEPT_FRAMES = 50  # the frames a map waits through kept to be located in it once it starts (``InitialViews.keep``)
 
 
 @dataclass
@@ -532,9 +533,13 @@ def _at_distance(T_world_cam: np.ndarray, origin: np.ndarray, distance: float) -
 
 
 class InitialViews:
-    """The frames since the keyframe a map waits to start from, adjusted together with each new one: measured one
-    by one from a keyframe a few pixels away, their translations point degrees apart (a homography here, an
-    essential matrix there); together they agree.
+    """The frames a map waits through, until it starts.
+
+    - The views: the frames since the keyframe the map waits to start from whose tracks moved ``min_parallax``
+      px, adjusted together with each new one. Measured one by one from a keyframe a few pixels away, their
+      translations point degrees apart (a homography here, an essential matrix there); together they agree.
+    - The kept frames: every frame's tracks since a map last held the keyframe (the last ``KEPT_FRAMES``), to be
+      located in the map once it starts (``locate_kept``); ``located`` holds where it placed them.
 
     Args:
         config: the map's settings (its bundle adjustment and ``min_located``).
@@ -543,6 +548,9 @@ class InitialViews:
     def __init__(self, config: MapConfig):
         self.config = config
         self.views: dict[int, Keyframe] = {}  # the frames kept as views, by index, in order
+        self.kept: dict[int, Keyframe] = {}  # the frames to locate once a map starts, by index, in order
+        # index -> (the keyframe the map started from, the frame seen from it T_kf_frame (4, 4))
+        self.located: dict[int, tuple[int, np.ndarray]] = {}
 
     def adjust(self, first: Keyframe, current: Keyframe, estimate: Callable[[int], np.ndarray]) -> np.ndarray | None:
         """The pose ``T_world_cam`` (4, 4) of ``current`` adjusted together with the keyframe ``first`` (held, with
@@ -560,8 +568,32 @@ class InitialViews:
         self.views[view.index] = view
 
     def keep_after(self, keyframe: int | None) -> None:
-        """Keep only the views of frames after ``keyframe``; none where it is None (no map waits)."""
+        """Keep only the views of frames after ``keyframe``; no views and no kept frames where it is None (no map
+        waits)."""
         self.views = {} if keyframe is None else {i: view for i, view in self.views.items() if i > keyframe}
+        if keyframe is None:
+            self.kept = {}
+
+    def keep(self, frame: Keyframe) -> None:
+        """Keep ``frame`` (its tracks; its pose is not used) to locate it once a map starts: the last
+        ``KEPT_FRAMES``."""
+        self.kept[frame.index] = frame
+        if len(self.kept) > KEPT_FRAMES:
+            del self.kept[min(self.kept)]
+
+    def locate_kept(self, local_map: LocalMap, keyframe: int, guess: Callable[[int], np.ndarray]) -> None:
+        """A map has just started from ``keyframe``: the kept frames but that one, located in it (PnP on their
+        tracks that are its landmarks, from ``guess``: a frame's index -> ``T_world_cam`` (4, 4) in the map's
+        world), into ``located``; none kept after. Measured two-view over a few pixels of parallax, their online
+        estimates point degrees off; the map's landmarks place them from depths the two views could not tell."""
+        T_map_kf = local_map.pose(keyframe)
+        for index, frame in self.kept.items():
+            if index == keyframe:
+                continue
+            location = local_map.locate(frame.ids, frame.points, frame.K, guess(index))
+            if location.T_world_cam is not None:
+                self.located[index] = (keyframe, np.linalg.inv(T_map_kf) @ location.T_world_cam)
+        self.kept = {}
 
 
 def _direction_sigma_deg(

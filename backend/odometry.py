@@ -55,7 +55,6 @@ from deepslam.interrupts import checkpoint
 
 BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
 ADJUSTED_AGREEMENT = (3.0, 0.5)  # ... if within this many degrees and this share of its length of the graph's
-BEFORE_MAP_FRAMES = 50  # the frames a map waits through kept to be located in it once it starts (``Odometry.poses``)
 # ISAM2 updates (each one Gauss-Newton step) a keyframe located in the map adds to the graph once its factors are in:
 # the frames located in the map between keyframes, which the graph does not hold, no longer update it
 KEYFRAME_UPDATES = 3
@@ -173,11 +172,7 @@ class Odometry:
         # (keyframe, how the last frame measured against it in the map was located): map only
         self.location: tuple[int, MapLocation] | None = None
         self.measured: dict[int, Measurement] = {}  # the frames the graph does not hold (located in the map), by index
-        # the frames since the keyframe a map waits to start from whose tracks moved min_parallax px
-        self.waiting = InitialViews(config.map)
-        self.before_map: dict[int, Keyframe] = {}  # the frames (tracks) since the map last held the keyframe, by index
-        # frames from before a map where it located them once it started: index -> (its keyframe, T_kf_frame (4, 4))
-        self.located_later: dict[int, tuple[int, np.ndarray]] = {}
+        self.waiting = InitialViews(config.map)  # the frames a map waits through, and where it located them
 
     def _step_length(self, i: int, j: int, rel: relpose.RelativePose) -> float:
         """Metric length of the translation between frames i and j."""
@@ -262,7 +257,8 @@ class Odometry:
         self.waiting.keep_after(self.keyframe if self._map_waits() else None)
         if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
             tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
-        self._keep_before_map(k)
+        if self._map_waits():  # kept to be located in the map once it starts
+            self.waiting.keep(self._keyframe(k, self.estimate(k)))
         pose = self.estimate(k)
         self._measure_velocity(k, rel)
         optimised = time.perf_counter()
@@ -440,7 +436,7 @@ class Odometry:
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
         started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
         if started:
-            self._locate_before_map(kf)
+            self.waiting.locate_kept(self.map, kf, lambda index: self._in_map(kf, self.estimate(index)))
             before, T_adjusted, sigmas = self._adjusted()
             measurement = self.measured[k] = replace(measurement, keyframe=before, T=T_adjusted, sigmas=sigmas)
         decision = self.policy.decide(self._evidence(k, kf, confirmed, started))
@@ -457,29 +453,6 @@ class Odometry:
             self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
         self.scale.frame_done(k, self._map_holds(self.keyframe))
         return decision, measurement.T
-
-    def _keep_before_map(self, k: int) -> None:
-        """Keep frame k's tracks while a map waits to start (the last ``BEFORE_MAP_FRAMES`` frames), to locate it in
-        the map once one does; none once a map holds the keyframe."""
-        if not self._map_waits():
-            self.before_map = {}
-            return
-        self.before_map[k] = self._keyframe(k, self.estimate(k))
-        if len(self.before_map) > BEFORE_MAP_FRAMES:
-            del self.before_map[min(self.before_map)]
-
-    def _locate_before_map(self, kf: int) -> None:
-        """A map has just started from keyframe kf: the frames kept from before it, located in it (PnP on their
-        tracks that are its landmarks), for ``poses``. Measured two-view over a few pixels of parallax, their
-        online estimates point degrees off; the map's landmarks place them from depths the two views could not
-        tell. Their online estimates and the graph stay as they were."""
-        for index, view in self.before_map.items():
-            if index == kf:
-                continue
-            location = self.map.locate(view.ids, view.points, view.K, self._in_map(kf, self.estimate(index)))
-            if location.T_world_cam is not None:
-                self.located_later[index] = (kf, np.linalg.inv(self.map.pose(kf)) @ location.T_world_cam)
-        self.before_map = {}
 
     def _advance(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, started: bool) -> None:
         """Frame k, measured from keyframe kf as ``T`` (4, 4), becomes the keyframe after the current one: the
@@ -614,6 +587,6 @@ class Odometry:
         """The optimised trajectory (N, 4, 4) ``T_world_cam``: each frame's latest estimate, but a frame from before
         a map where that map located it once it started (its keyframe's latest estimate composed with that pose)."""
         poses = np.stack([self.estimate(index) for index in range(self.frames)])
-        for index, (keyframe, T) in self.located_later.items():
+        for index, (keyframe, T) in self.waiting.located.items():
             poses[index] = self.graph.pose(keyframe) @ T
         return poses

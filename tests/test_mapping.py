@@ -493,9 +493,9 @@ def test_the_final_trajectory_places_the_frames_before_a_map_where_the_map_locat
         starts += [result.index] if result.keyframe_reason == "a map starts" else []
         odometry = pipeline.odometry
     final = odometry.poses()  # what Pipeline.trajectory returns
-    located = sorted(odometry.located_later)
+    located = sorted(odometry.waiting.located)
     assert len(starts) == 1 and len(located) >= 15 and 0 < min(located) and max(located) < starts[0]
-    assert not odometry.before_map  # kept only while a map waits
+    assert not odometry.waiting.kept  # kept only while a map waits
     for index in set(range(30)) - set(located):
         np.testing.assert_array_equal(final[index], odometry.estimate(index))
     assert drift.ate_rmse(final, np.array(truth)) < 0.6 * drift.ate_rmse(np.array(online), np.array(truth))
