@@ -23,12 +23,15 @@ def partial_path(path: str | Path) -> Path:
 
 
 def check_output(path: str | Path, inputs: tuple[str | Path, ...] = ()) -> None:
-    """Raise ``OutputError`` unless a file can be written to ``path``: not a folder, its folder writable
-    (or creatable), and neither ``path`` nor its ``.partial`` the same file as any of ``inputs`` under any
-    name (hard links and symlinks included)."""
+    """Raise ``OutputError`` unless a file can be written to ``path``: not a folder, nor a device, a pipe or a
+    socket (the finished ``.partial`` is renamed onto ``path``, which would replace such a file: ``/dev/null``
+    itself, for root), its folder writable (or creatable), and neither ``path`` nor its ``.partial`` the same
+    file as any of ``inputs`` under any name (hard links and symlinks included)."""
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path} is a folder; give a file name")
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path} is not a regular file (a device, a pipe or a socket); give a file name")
     for target in (path, partial_path(path)):
         for source in inputs:
             if target.exists() and Path(source).exists() and target.samefile(source):

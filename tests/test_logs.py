@@ -422,6 +422,11 @@ def test_outputs_never_clobber_inputs_or_each_other(oracle_log, tmp_path):
             LogWriter(busy, {})
     with pytest.raises(LogWriteError, match="is a folder"):
         LogWriter(tmp_path, {})
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)  # as /dev/null: the finished log renamed onto it would replace it
+    with pytest.raises(LogWriteError, match="not a regular file"):
+        LogWriter(pipe, {})
+    assert pipe.is_fifo() and not partial_path(pipe).exists()
     failed = tmp_path / "failed.mcap"
     failed.write_bytes(b"keep me")
     with pytest.raises(RuntimeError):
