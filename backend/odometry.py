@@ -253,12 +253,7 @@ class Odometry:
         measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
         decision, T = self._update_keyframes(measurement, rel, len(pairs))
         T, adjusted = self._adjust_located(k, kf, rel, T, (pairs, measured_points))
-        self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
-        self.waiting.keep_after(self.keyframe if self._map_waits() else None)
-        if self.keyframe != k:  # later frames are measured against a keyframe's detections; others report
-            tracks.points[pairs[:, 1]] = measured_points  # the positions their pose was measured from
-        if self._map_waits():  # kept to be located in the map once it starts
-            self.waiting.keep(self._keyframe(k, self.estimate(k)))
+        self._keep(k, tracks, pairs, measured_points)
         pose = self.estimate(k)
         self._measure_velocity(k, rel)
         optimised = time.perf_counter()
@@ -274,6 +269,20 @@ class Odometry:
             k, tracks, rel, pose, covariance, pairs, T, kf, timings, self.keyframe == k, measured_points, landmarks,
             shared, map_points, self._phase(rel), decision.reason,
         )  # fmt: skip
+
+    def _keep(self, k: int, tracks: Tracks, pairs: np.ndarray, measured_points: np.ndarray) -> None:
+        """What the frames after frame k need of it and of those before, frame k measured on ``pairs`` (K, 2) with
+        its ``measured_points`` (K, 2) of them: the frames later ones are measured against (frame k, the keyframe
+        and the one before it); frame k's points as its pose was measured from them, unless it is a keyframe (later
+        frames are measured against a keyframe's points as tracked); and while a map waits, the views since its
+        keyframe, and frame k's tracks, to locate it once the map starts (``InitialViews``)."""
+        self.history = {i: kept for i, kept in self.history.items() if i in (k, self.keyframe, self.previous_keyframe)}
+        waits = self._map_waits()
+        self.waiting.keep_after(self.keyframe if waits else None)
+        if self.keyframe != k:
+            tracks.points[pairs[:, 1]] = measured_points
+        if waits:
+            self.waiting.keep(self._keyframe(k, self.estimate(k)))
 
     def _adjust_located(
         self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, located: tuple[np.ndarray, np.ndarray]
