@@ -551,6 +551,11 @@ def main(argv: list[str] | None = None) -> int:
     threads = getattr(args, "threads", 1)
     torch.set_num_threads(threads)  # small networks: one thread is fastest (the paper's set-up)
     cv2.setNumThreads(threads)
+    return _ended(_run_command(args, parser))
+
+
+def _run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The command's exit status, its errors said in one line."""
     try:
         args.func(args)
     except _UsageError as error:
@@ -569,6 +574,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"deepslam: {'terminated' if isinstance(interrupt, Terminated) else 'interrupted'}", file=sys.stderr)
         return 143 if isinstance(interrupt, Terminated) else 130
     return 0
+
+
+def _ended(status: int) -> int:
+    """``status``; a rank of a torchrun process group (``deepslam train`` under torchrun) exits with it at once
+    instead, its output flushed, without Python's shutdown: torch's gloo threads may still be letting go of a
+    finished collective's tensors then, which aborts the process (pytorch/pytorch#190489), and neither the end
+    of training nor ``destroy_process_group`` waits for them."""
+    distributed = sys.modules.get("torch.distributed")
+    if distributed is None or not distributed.is_available() or not distributed.is_initialized():
+        return status
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
 
 
 if __name__ == "__main__":
