@@ -120,6 +120,12 @@ def shared_tracks(a: Tracks, b: Tracks) -> np.ndarray:
     return np.stack([ia, ib], 1).astype(np.int64)
 
 
+def _sigmas(rel: relpose.RelativePose, T: np.ndarray, parallax: float) -> np.ndarray:
+    """The sigmas (6,) the graph takes a pose ``T`` (4, 4) with, measured as ``rel`` over ``parallax`` px
+    (``measurement_sigmas``: from its inliers and their share, its length and the parallax)."""
+    return measurement_sigmas(int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax)
+
+
 def _median_motion(a: Tracks | Keyframe, b: Tracks | Keyframe, pairs: np.ndarray) -> float:
     """Median motion (px) from ``a`` to ``b`` (tracks or map keyframes: ids and points) of the pairs (K, 2) of
     their indices; 0 for no pairs."""
@@ -394,9 +400,7 @@ class Odometry:
         by the last step the map measured (``MapScale.velocity``), or before any map, no motion since frame k - 1.
         Until it joins the graph, frame k's estimate is the keyframe's composed with it."""
         if rel.ok:
-            sigmas = measurement_sigmas(
-                int(rel.inliers.sum()), rel.inlier_ratio, float(np.linalg.norm(T[:3, 3])), parallax
-            )
+            sigmas = _sigmas(rel, T, parallax)
             self.two_view.moved(T, np.inf if rel.model == "pnp" else parallax)
         else:
             last, velocity = self.estimate(k - 1), self.scale.velocity()
@@ -580,17 +584,7 @@ class Odometry:
             return
         rel, T, pairs, _ = self._measure(j, k)
         if rel.ok and rel.model != "static":
-            self.graph.add_between(
-                j,
-                k,
-                T,
-                measurement_sigmas(
-                    int(rel.inliers.sum()),
-                    rel.inlier_ratio,
-                    float(np.linalg.norm(T[:3, 3])),
-                    self._parallax(j, k, pairs),
-                ),
-            )
+            self.graph.add_between(j, k, T, _sigmas(rel, T, self._parallax(j, k, pairs)))
 
     def poses(self) -> np.ndarray:
         """The optimised trajectory (N, 4, 4) ``T_world_cam``: each frame's latest estimate, but a frame from before
