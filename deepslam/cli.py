@@ -82,6 +82,14 @@ def _export(args: argparse.Namespace) -> None:
     log.info(f"wrote {args.out} (step {state['step']}, {args.out.stat().st_size / 1e6:.2f} MB)")
 
 
+def _file_path(text: str) -> Path:
+    """An output that names a file (argparse type): refused where it ends in a path separator, as a folder's name
+    may (a ``Path`` drops the separator, and the file would take the folder's name)."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text} ends in {text[-1]}, as a folder does; give a file name")
+    return Path(text)
+
+
 def _check_folder(folder: Path) -> None:
     """Fail before any work starts unless results can be written into ``folder`` (made if missing)."""
     if folder.exists() and not folder.is_dir():
@@ -336,7 +344,9 @@ def _train_commands(commands, detailed: bool) -> None:
         parents=[_COMMON],
     )
     export.add_argument("checkpoint", type=Path, help="a training checkpoint, e.g. runs/magicpoint_S_ft/best.pt")
-    export.add_argument("out", type=Path, help="where to write the weights, e.g. frontend/weights/magicpoint_S.pt")
+    export.add_argument(
+        "out", type=_file_path, help="where to write the weights, e.g. frontend/weights/magicpoint_S.pt"
+    )
     export.set_defaults(func=_export, parser=export)
 
 
@@ -356,7 +366,7 @@ def _pipeline_commands(commands) -> None:
         TrackerConfig,
         OdometryConfig,
     )
-    run.add_argument("--out", type=Path, default=Path("out/run.mcap"), help="MCAP log to write")
+    run.add_argument("--out", type=_file_path, default=Path("out/run.mcap"), help="MCAP log to write")
     replay = _command(
         commands,
         "replay",
@@ -372,12 +382,12 @@ def _pipeline_commands(commands) -> None:
         type=Path,
         help="a deepslam log, a ROS 2 bag (.mcap file or rosbag2 folder), a TUM or EuRoC folder, or a video file",
     )
-    replay.add_argument("--out", type=Path, default=Path("out/replay.mcap"), help="MCAP log to write")
+    replay.add_argument("--out", type=_file_path, default=Path("out/replay.mcap"), help="MCAP log to write")
     for parser in (run, replay):
         parser.set_defaults(runs_pipeline=True)
     report = _command(commands, "report", "one self-contained HTML page comparing runs from their logs", _report)
     report.add_argument("logs", type=Path, nargs="+", help="MCAP logs written by deepslam run or replay")
-    report.add_argument("--out", type=Path, default=Path("out/report.html"), help="the HTML file to write")
+    report.add_argument("--out", type=_file_path, default=Path("out/report.html"), help="the HTML file to write")
     recover = _command(
         commands,
         "recover",
@@ -385,7 +395,7 @@ def _pipeline_commands(commands) -> None:
         _recover,
     )
     recover.add_argument("log", type=Path, help="the log to recover, e.g. out/run.mcap.partial")
-    recover.add_argument("--out", type=Path, required=True, help="the finished log to write")
+    recover.add_argument("--out", type=_file_path, required=True, help="the finished log to write")
     drift = _command(commands, "drift", "ATE/RPE/final drift of logs, side by side, with plots", _drift)
     drift.add_argument("logs", type=Path, nargs="+", help="MCAP logs holding /groundtruth/pose and /estimate/pose")
     add_options(drift, DriftConfig)

@@ -133,6 +133,8 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
         (["drift", str(tmp_path / "missing.mcap")], "missing.mcap: no such file or folder"),
         (["report", str(tmp_path / "missing.mcap")], "missing.mcap: no such file or folder"),
         (["recover", str(tmp_path / "missing.mcap"), "--out", log], "missing.mcap: no such file or folder"),
+        (["run", "--out", f"{tmp_path / 'runs'}/"], "runs/ ends in /, as a folder does; give a file name"),
+        (["report", log, "--out", f"{tmp_path / 'pages'}/"], "pages/ ends in /, as a folder does"),
     ]:
         with pytest.raises(SystemExit) as exit_info:
             main(argv)
