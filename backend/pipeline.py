@@ -52,6 +52,7 @@ class Pipeline:
         tracker = tracker or make_tracker(self.config.tracker, carry_default=carry)
         self.odometry = Odometry(tracker, self.config.odometry, origin, step_lengths)
         self.stamps_ns: list[int] = []
+        self.shape: tuple[int, int] | None = None  # the first frame's image (H, W)
 
     @property
     def tracker(self) -> Tracker:
@@ -70,8 +71,14 @@ class Pipeline:
             has it now, and diagnostics.
         """
         _check_frame(image, K, stamp_ns, self.stamps_ns[-1] if self.stamps_ns else None)
+        if self.shape is not None and image.shape != self.shape:
+            raise InputError(
+                f"frame {len(self.stamps_ns)} is {image.shape[0]}x{image.shape[1]}, the first was "
+                f"{self.shape[0]}x{self.shape[1]}: every frame of a run must have the same size"
+            )
         result = self.odometry.process(image, K)
         self.stamps_ns.append(int(stamp_ns))
+        self.shape = image.shape
         return result
 
     def trajectory(self) -> np.ndarray:

@@ -1,4 +1,5 @@
 import json
+import re
 
 import cv2
 import numpy as np
@@ -488,6 +489,23 @@ def test_the_oracle_takes_its_pixel_noise_from_the_config_and_its_landmarks_from
     with pytest.raises(InputError, match="oracle"):
         make_tracker(TrackerConfig("oracle"))  # the library has no truth to give it
     assert 1.5 < np.median(error) < 3.5  # a 2-D Gaussian of sigma 2 has a median radius of 2.35
+
+
+def test_the_pipeline_refuses_a_bad_frame_with_what_is_wrong_and_keeps_its_run():
+    K, image = np.array([[100.0, 0, 79.5], [0, 100.0, 59.5], [0, 0, 1]]), np.zeros((120, 160), np.uint8)
+    pipeline = Pipeline(PipelineConfig(TrackerConfig("classical")))
+    pipeline.process(image, K, 10)
+    for frame, message in [
+        ((image.astype(np.float32), K, 20), "must be uint8 (H, W) grayscale, got float32 (120, 160)"),
+        ((np.zeros((120, 160, 3), np.uint8), K, 20), "got uint8 (120, 160, 3)"),
+        ((image, np.eye(2), 20), "K must be a finite (3, 3) camera matrix"),
+        ((image, K, 20.5), "stamp_ns must be integer nanoseconds, got 20.5"),
+        ((image, K, 10), "stamps must increase: 10 ns after 10 ns"),
+        ((np.zeros((240, 320), np.uint8), K, 20), "frame 1 is 240x320, the first was 120x160"),
+    ]:
+        with pytest.raises(InputError, match=re.escape(message)):
+            pipeline.process(*frame)
+    assert pipeline.process(image, K, 20).index == 1 and len(pipeline.trajectory()) == 2
 
 
 def test_magic_tracks_are_carried_only_where_relative_poses_may_come_from_a_homography():
