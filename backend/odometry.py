@@ -441,31 +441,45 @@ class Odometry:
         self, measurement: Measurement, rel: relpose.RelativePose, confirmed: int
     ) -> tuple[Decision, np.ndarray]:
         """Frame k, measured from keyframe kf (``rel``) with ``confirmed`` pairs, through the keyframe decision
-        (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_starts_map``), and a frame that
-        starts one is measured by the map's adjustment. Frames measured two-view join the graph, those located in
-        the map only as keyframes. A new keyframe moves the plane's distance on, joins the map that located it,
-        and where it was lost starts the map again. Returns the decision and frame k's pose from keyframe kf."""
-        k, kf, T = measurement.index, measurement.keyframe, measurement.T
+        (``KeyframePolicy``); a map is tried first where none holds the keyframe (``_map_start``). Returns the
+        decision and frame k's pose from its keyframe (the map's adjustment of it where it started one)."""
+        k, kf = measurement.index, measurement.keyframe
         self.lost_in_a_row = 0 if rel.ok else self.lost_in_a_row + 1
-        started = self.lost_in_a_row < self.config.reinitialise_after and self._starts_map(k, kf, rel, T)
-        if started:
-            self.waiting.locate_kept(self.map, kf, lambda index: self._in_map(kf, self.estimate(index)))
-            before, T_adjusted, sigmas = self._adjusted()
-            measurement = self.measured[k] = replace(measurement, keyframe=before, T=T_adjusted, sigmas=sigmas)
+        start = self._map_start(measurement, rel)
+        started = start is not None
+        measurement = start if started else measurement
         decision = self.policy.decide(self._evidence(k, kf, confirmed, started))
-        located = rel.model == "pnp"
+        self._follow(decision, measurement, rel, started)
+        self.scale.frame_done(k, self._map_holds(self.keyframe))
+        return decision, measurement.T
+
+    def _map_start(self, measurement: Measurement, rel: relpose.RelativePose) -> Measurement | None:
+        """Where a map starts from the keyframe and frame k (``_starts_map``; not after ``reinitialise_after``
+        lost frames in a row): the frames it waited through located in it, and frame k's measurement as the map's
+        adjustment has it (from the keyframe before it in the map); else None."""
+        k, kf, T = measurement.index, measurement.keyframe, measurement.T
+        if self.lost_in_a_row >= self.config.reinitialise_after or not self._starts_map(k, kf, rel, T):
+            return None
+        self.waiting.locate_kept(self.map, kf, lambda index: self._in_map(kf, self.estimate(index)))
+        before, T_adjusted, sigmas = self._adjusted()
+        self.measured[k] = replace(measurement, keyframe=before, T=T_adjusted, sigmas=sigmas)
+        return self.measured[k]
+
+    def _follow(self, decision: Decision, measurement: Measurement, rel: relpose.RelativePose, started: bool) -> None:
+        """Carry out the ``decision`` on frame k (``measurement``, measured as ``rel``; ``started``: it started a
+        map). Frames measured two-view join the graph, those located in the map only as keyframes. A new keyframe
+        moves the plane's distance on, joins the map that located it, and where it was lost starts the map again."""
+        k, located = measurement.index, rel.model == "pnp"
         if decision.keyframe or not located:
             self._add_measurement(measurement)
         if decision.restart:
             self.previous_keyframe, self.keyframe, self.lost_in_a_row = None, k, 0
         elif decision.keyframe:
-            self._advance(k, kf, rel, T, started)
+            self._advance(k, measurement.keyframe, rel, measurement.T, started)
         if decision.keyframe and located:
             self.graph.refine(KEYFRAME_UPDATES)
         if self.map is not None and self.keyframe == k and not rel.ok:
             self.map = LocalMap(self.config.map)  # tracking starts again from frame k: so does the map
-        self.scale.frame_done(k, self._map_holds(self.keyframe))
-        return decision, measurement.T
 
     def _advance(self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, started: bool) -> None:
         """Frame k, measured from keyframe kf as ``T`` (4, 4), becomes the keyframe after the current one: the
