@@ -72,6 +72,18 @@ class Measurement:
 
 
 @dataclass(frozen=True)
+class Posed:
+    """Frame k's pose from a keyframe as measured: ``rel`` (two-view, or "pnp" where the map located it), ``T``
+    (4, 4) ``T_kf_k`` (metric), the pairs (K, 2) of the keyframe's and frame k's tracks it was measured from, and
+    frame k's points (K, 2) of them (where the front-end confirmed them: ``Tracker.confirm``)."""
+
+    rel: relpose.RelativePose
+    T: np.ndarray
+    pairs: np.ndarray
+    points: np.ndarray
+
+
+@dataclass(frozen=True)
 class _Kept:
     """What the odometry keeps of a frame it may still measure against: K (3, 3) and the image's (H, W)."""
 
@@ -189,9 +201,9 @@ class Odometry:
             return self.scale.two_view(i, j, self._parallax(i, j, pairs))
         return self.plane.length(rel)
 
-    def _locate(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
+    def _locate(self, kf: int, k: int) -> Posed:
         """Frame k located in the map by PnP on the landmarks among the pairs the front-end confirms with keyframe
-        kf (which the map holds); returns what ``_measure`` does, the pose "pnp" (T_kf_k metric)."""
+        kf (which the map holds): the pose "pnp" from those pairs, or "failed"."""
         frame_k, tracks_k = self.history[k]
         pairs, points = self._confirmed(kf, k)
         ids = tracks_k.ids[pairs[:, 1]]
@@ -203,10 +215,10 @@ class Odometry:
         if location.T_world_cam is None:
             self.location = (kf, MapLocation(located, first, 0.0))
             failed = relpose.RelativePose(np.eye(4), "failed", location.inliers, reason=location.reason)
-            return failed, np.eye(4), pairs, points
+            return Posed(failed, np.eye(4), pairs, points)
         T = np.linalg.inv(self.map.pose(kf)) @ location.T_world_cam
         self.location = (kf, MapLocation(located, first, self.map.baseline_px(location, frame_k.K, kf)))
-        return relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points
+        return Posed(relpose.RelativePose(T, "pnp", location.inliers), T, pairs, points)
 
     def _located_against(self, kf: int) -> MapLocation | None:
         """How the last frame located in the map against keyframe kf was, or None where none was."""
@@ -226,9 +238,8 @@ class Odometry:
     def _map_holds(self, index: int) -> bool:
         return self.map is not None and self.map.holds(index)
 
-    def _measure(self, i: int, j: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
-        """Relative pose between stored frames i < j, scaled; returns (pose, T_i_j, correspondences (K, 2),
-        frame j's points of them (K, 2))."""
+    def _measure(self, i: int, j: int) -> Posed:
+        """Frame j's two-view pose from stored frame i < j, scaled."""
         tracks_i, frame_j = self.history[i][1], self.history[j][0]
         pairs, p2 = self._confirmed(i, j)
         T_world_i = self.graph.pose(i)
@@ -238,7 +249,7 @@ class Odometry:
         T = rel.T_c1_c2.copy()
         if rel.ok and not rel.rotation_only and rel.model != "static":
             T = with_length(T, self._step_length(i, j, rel))
-        return rel, T, pairs, p2
+        return Posed(rel, T, pairs, p2)
 
     def process(self, image: np.ndarray, K: np.ndarray) -> FrameResult:
         """Track the next frame (image uint8 (H, W), K (3, 3)), measure its pose against the current keyframe (in
@@ -252,13 +263,14 @@ class Odometry:
             return self._first_frame(tracks, 1e3 * (tracked - started))
         checkpoint()  # Ctrl-C and SIGTERM take effect between the stages of a frame
         kf = self._reference(k, tracks)
-        rel, T, pairs, measured_points = self._pose(kf, k)
-        T = self._initialising(kf, k, rel, T, (pairs, measured_points))
+        posed = self._pose(kf, k)
+        posed = replace(posed, T=self._initialising(kf, k, posed))
+        rel, pairs, measured_points = posed.rel, posed.pairs, posed.points
         measured, shared = time.perf_counter(), self._shared(kf, k, rel)
         checkpoint()
-        measurement = self._measurement(kf, k, rel, T, self._parallax(kf, k, pairs))
+        measurement = self._measurement(kf, k, rel, posed.T, self._parallax(kf, k, pairs))
         decision, T = self._update_keyframes(measurement, rel, len(pairs))
-        T, adjusted = self._adjust_located(k, kf, rel, T, (pairs, measured_points))
+        T, adjusted = self._adjust_located(k, kf, replace(posed, T=T))
         self._keep(k, tracks, pairs, measured_points)
         pose = self.estimate(k)
         self._measure_velocity(k, rel)
@@ -290,17 +302,17 @@ class Odometry:
         if waits:
             self.waiting.keep(self._keyframe(k, self.estimate(k)))
 
-    def _adjust_located(
-        self, k: int, kf: int, rel: relpose.RelativePose, T: np.ndarray, located: tuple[np.ndarray, np.ndarray]
-    ) -> tuple[np.ndarray, bool]:
-        """Frame k, located in the map against keyframe kf as ``T`` (4, 4) from it (``rel``: PnP's inliers among
-        the landmark pairs (K, 2) and frame k's points (K, 2) of them, ``located``) and not made a keyframe: with
-        ``map.adjust_frames``, its inliers join the map's bundle adjustment (``LocalMap.observe``). Returns frame
-        k's pose from kf (4, 4), the adjusted one where it joined, and whether it did (the map moved)."""
+    def _adjust_located(self, k: int, kf: int, located: Posed) -> tuple[np.ndarray, bool]:
+        """Frame k, ``located`` in the map against keyframe kf (PnP's inliers among its landmark pairs) and not made
+        a keyframe: with ``map.adjust_frames``, its inliers join the map's bundle adjustment (``LocalMap.observe``).
+        Returns frame k's pose from kf (4, 4), the adjusted one where it joined, and whether it did (the map
+        moved)."""
+        rel, T = located.rel, located.T
         if not (self.config.map.adjust_frames and rel.model == "pnp" and k in self.measured):
             return T, False
-        (frame_k, tracks_k), (pairs, points) = self.history[k], located
-        view = Keyframe(k, self.map.pose(kf) @ T, frame_k.K, tracks_k.ids[pairs[rel.inliers, 1]], points[rel.inliers])
+        (frame_k, tracks_k), inliers = self.history[k], rel.inliers
+        ids = tracks_k.ids[located.pairs[inliers, 1]]
+        view = Keyframe(k, self.map.pose(kf) @ T, frame_k.K, ids, located.points[inliers])
         pose = self.map.observe(view)  # moves keyframe kf too
         adjusted = np.linalg.inv(self.map.pose(kf)) @ pose
         self.measured[k] = replace(self.measured[k], T=adjusted)
@@ -332,31 +344,30 @@ class Odometry:
         """Whether a map waits to start from the current keyframe (``scale="map"``, none holds it)."""
         return self.map is not None and not self._map_holds(self.keyframe)
 
-    def _initialising(
-        self, kf: int, k: int, rel: relpose.RelativePose, T: np.ndarray, confirmed: tuple[np.ndarray, np.ndarray]
-    ) -> np.ndarray:
-        """Frame k's pose from keyframe kf (4, 4) while a map waits to start from kf: its two-view pose ``T``
+    def _initialising(self, kf: int, k: int, posed: Posed) -> np.ndarray:
+        """Frame k's pose from keyframe kf (4, 4) while a map waits to start from kf: its two-view pose (``posed``)
         adjusted together with the frames since kf whose tracks moved ``min_parallax`` px from it
-        (``InitialViews``), each with the pairs the front-end confirmed with kf (``confirmed``: pairs (K, 2) and
-        frame k's points (K, 2) of them). ``T`` where there is no map to wait for, the pose is not a translation
-        measured two-view, or the frames triangulate too few landmarks."""
+        (``InitialViews``), each with the pairs the front-end confirmed with kf. ``posed.T`` where there is no map
+        to wait for, the pose is not a translation measured two-view, or the frames triangulate too few
+        landmarks."""
+        rel, T = posed.rel, posed.T
         two_view = rel.model in ("homography", "essential") and not rel.rotation_only
         if kf != self.keyframe or not self._map_waits() or not two_view:
             return T
-        origin, (pairs, points) = self.graph.pose(kf), confirmed
+        origin, ids = self.graph.pose(kf), self.history[k][1].ids[posed.pairs[:, 1]]
         first = self._keyframe(kf, origin)
-        current = Keyframe(k, origin @ T, self.history[k][0].K, self.history[k][1].ids[pairs[:, 1]], points)
+        current = Keyframe(k, origin @ T, self.history[k][0].K, ids, posed.points)
         adjusted = self.waiting.adjust(first, current, self.estimate)
         if _median_motion(first, current, shared_tracks(first, current)) >= self.config.min_parallax:
             self.waiting.add(current)
         return T if adjusted is None else np.linalg.inv(origin) @ adjusted
 
-    def _pose(self, kf: int, k: int) -> tuple[relpose.RelativePose, np.ndarray, np.ndarray, np.ndarray]:
-        """Frame k's pose from keyframe kf (what ``_measure`` returns): located in the map where it holds kf, else
-        (or where too few landmarks are found) the two-view pose."""
+    def _pose(self, kf: int, k: int) -> Posed:
+        """Frame k's pose from keyframe kf: located in the map where it holds kf, else (or where too few landmarks
+        are found) the two-view pose."""
         if self._map_holds(kf):
             located = self._locate(kf, k)
-            if located[0].ok:
+            if located.rel.ok:
                 return located
         return self._measure(kf, k)
 
@@ -596,9 +607,10 @@ class Odometry:
             or len(shared_tracks(self.history[j][1], self.history[k][1])) < self.config.min_shared_tracks
         ):
             return
-        rel, T, pairs, _ = self._measure(j, k)
-        if rel.ok and rel.model != "static":
-            self.graph.add_between(j, k, T, _sigmas(rel, T, self._parallax(j, k, pairs)))
+        posed = self._measure(j, k)
+        if posed.rel.ok and posed.rel.model != "static":
+            parallax = self._parallax(j, k, posed.pairs)
+            self.graph.add_between(j, k, posed.T, _sigmas(posed.rel, posed.T, parallax))
 
     def poses(self) -> np.ndarray:
         """The optimised trajectory (N, 4, 4) ``T_world_cam``: each frame's latest estimate, but a frame from before
