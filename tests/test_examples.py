@@ -79,9 +79,10 @@ def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(ca
     lines = capsys.readouterr().out.splitlines()
     rows = [line.split() for line in lines[1:-1]]
     assert [row[:2] for row in rows] == [["plane", "circle"], ["clutter", "circle"], ["clutter", "forward"]]
-    starts, whole, after = (np.array([float(row[i]) for row in rows]) for i in (3, 4, 5))
+    starts, whole, after, own = (np.array([float(row[i]) for row in rows]) for i in (3, 4, 5, 7))
     assert starts[0] < 10 and np.all(whole > 0) and np.all(after[np.isfinite(after)] > 0)
     assert np.isnan(after[starts > 17]).all()  # no three frames in a map to measure
+    assert own[0] > 0 and np.isnan(own[starts == 20]).all()  # the plane's map starts from frame 0; none: no baseline
     assert lines[-1].startswith(f"median {np.median(whole):.2f} (3 runs)")
     monkeypatch.setattr("sys.argv", ["limit_split.py", "--seeds", "0"])
     with pytest.raises(SystemExit) as exit_info:  # a usage error, not a traceback

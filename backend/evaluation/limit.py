@@ -57,9 +57,13 @@ class Limit:
     ate_se3: float
 
 
-def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitConfig()) -> Limit:
+def batch_adjust(
+    observations: TrackObservations, config: LimitConfig = LimitConfig(), baseline: int | None = None
+) -> Limit:
     """The batch bundle adjustment of every observation in ``observations`` (each frame with its true pose),
-    started at the truth."""
+    started at the truth. ``baseline``: the frame whose distance from frame 0 keeps its true length (the scale), if
+    the adjustment places it; by default the first that spans ``min_initial_px`` (one baseline sets the scale of
+    the whole adjustment to a few percent: docs/experiments.md)."""
     truth, focal = np.stack(observations.poses), float(observations.K[0][0, 0])
     projections = np.stack([observations.projection(frame) for frame in range(len(truth))])
     landmarks = _landmarks(observations, truth, projections, focal, config)
@@ -72,7 +76,9 @@ def batch_adjust(observations: TrackObservations, config: LimitConfig = LimitCon
     for index in np.flatnonzero(placed):
         values.insert(gtsam.symbol("x", index), gtsam.Pose3(truth[index]))
     points = np.array([point for *_, point in landmarks]).reshape(-1, 3)
-    _hold_gauge(graph, truth, _first_baseline(truth, points, focal, config.min_initial_px, placed))
+    if baseline is None or not 0 < baseline < len(truth) or not placed[baseline]:
+        baseline = _first_baseline(truth, points, focal, config.min_initial_px, placed)
+    _hold_gauge(graph, truth, baseline)
     noise, calibrations = pixel_noise(config.huber_px), [calibration(K) for K in observations.K]
     for track, frames, pixels, point in landmarks:
         values.insert(gtsam.symbol("l", track), gtsam.Point3(point))
