@@ -50,7 +50,7 @@ from deepslam.backend.scale import MapScale, PlaneScale, StepLengths, with_lengt
 from deepslam.backend.twoview import TwoView
 from deepslam.errors import InputError
 from deepslam.frontend.tracking import Predicted, Tracker, Tracks
-from deepslam.geometry import constant_motion, in_image, rotation_angle
+from deepslam.geometry import constant_motion, in_image, is_pose, rotation_angle
 from deepslam.interrupts import checkpoint
 
 BUNDLE_GAIN = 3.0  # a keyframe's pose after bundle adjustment is this many times surer than one measurement
@@ -176,6 +176,11 @@ class Odometry:
             config = replace(config, plane_distance=1.0)
         self.tracker, self.config, self.step_lengths = tracker, config, step_lengths
         self.policy = KeyframePolicy(config)
+        if origin is not None and not is_pose(origin):
+            raise InputError(
+                f"origin must be a (4, 4) T_world_cam: a rotation, a translation and a last row 0 0 0 1, got "
+                f"{np.asarray(origin).tolist()}"
+            )
         self.origin = np.eye(4) if origin is None else np.asarray(origin, np.float64)
         self.graph: PoseGraph | None = None
         self.history: dict[int, tuple[_Kept, Tracks]] = {}  # the frames still measured against, by index

@@ -45,6 +45,11 @@ class Pipeline:
         origin: np.ndarray | None = None,
         step_lengths: StepLengths | None = None,
     ):
+        if config is not None and not isinstance(config, PipelineConfig):
+            raise InputError(
+                f"config must be a PipelineConfig (its tracker and odometry), got {type(config).__name__}: "
+                "PipelineConfig(odometry=...) or PipelineConfig(TrackerConfig(...))"
+            )
         self.config = config or PipelineConfig()
         # carried tracks sit where the dominant plane's homography puts them: on by default only when
         # relative poses may come from that homography too

@@ -54,6 +54,16 @@ def constant_motion(before: np.ndarray, last: np.ndarray) -> np.ndarray:
     return last @ np.linalg.inv(before) @ last
 
 
+def is_pose(T: np.ndarray, tolerance: float = 1e-5) -> bool:
+    """Whether ``T`` is a finite (4, 4) rigid transform: a rotation (orthonormal, determinant +1, to ``tolerance``),
+    a translation and a last row 0 0 0 1."""
+    T = np.asarray(T, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.array_equal(T[3], [0, 0, 0, 1]):
+        return False
+    R = T[:3, :3]
+    return bool(np.abs(R.T @ R - np.eye(3)).max() <= tolerance and np.linalg.det(R) > 0)
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Angle (radians) of rotation matrices (..., 3, 3)."""
     return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))

@@ -508,6 +508,19 @@ def test_the_pipeline_refuses_a_bad_frame_with_what_is_wrong_and_keeps_its_run()
     assert pipeline.process(image, K, 20).index == 1 and len(pipeline.trajectory()) == 2
 
 
+def test_the_pipeline_refuses_an_origin_that_is_no_pose_and_a_config_of_another_kind():
+    turned = pose(np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0]))
+    turned[:3, :3] = turned[:3, :3].astype(np.float32)  # a rotation stored in float32 is still one
+    for origin in (np.eye(3), np.full((4, 4), np.nan), 2 * np.eye(4), np.r_[np.eye(4)[:3], [[0, 0, 1, 1]]]):
+        with pytest.raises(InputError, match="origin must be a .4, 4. T_world_cam"):
+            Pipeline(PipelineConfig(TrackerConfig("classical")), origin=origin)
+    pipeline = Pipeline(PipelineConfig(TrackerConfig("classical")), origin=turned)
+    image, K = np.zeros((120, 160), np.uint8), np.array([[100.0, 0, 79.5], [0, 100.0, 59.5], [0, 0, 1]])
+    np.testing.assert_allclose(pipeline.process(image, K, 0).T_world_cam, turned, atol=1e-6)
+    with pytest.raises(InputError, match="config must be a PipelineConfig .its tracker and odometry., got Odometry"):
+        Pipeline(OdometryConfig())
+
+
 def test_magic_tracks_are_carried_only_where_relative_poses_may_come_from_a_homography():
     for method, options, carried in [
         ("homography", {}, True),
