@@ -235,6 +235,11 @@ def match(points_a: np.ndarray, points_b: np.ndarray, H: np.ndarray, max_dist: f
         [[0, 1], [1, 0]]
     """
     a, b = _as_points(points_a, "points_a"), _as_points(points_b, "points_b")
+    H = np.asarray(H, np.float64)
+    if H.shape != (3, 3) or not np.all(np.isfinite(H)):
+        raise InputError(f"H must be a finite (3, 3) homography, got shape {H.shape}")
+    if not max_dist >= 0 or not np.isfinite(max_dist):
+        raise InputError(f"max_dist must be a finite distance of at least 0 px, got {max_dist}")
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
     near = cKDTree(warp_points(a, H)).sparse_distance_matrix(cKDTree(b), max_dist, output_type="ndarray")

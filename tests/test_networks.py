@@ -221,6 +221,14 @@ def test_match_is_mutually_exclusive_nearest_neighbour():
     shift = np.array([[1.0, 0, 40], [0, 1, 40], [0, 0, 1]])
     assert match(a[:1], b[1:2], shift, 1.0).tolist() == [[0, 0]]
     assert match(a, np.zeros((0, 2)), np.eye(3)).shape == (0, 2)
+    for H, max_dist, message in [
+        (np.eye(2), 2.0, "H must be a finite .3, 3. homography, got shape .2, 2."),
+        (np.full((3, 3), np.nan), 2.0, "H must be a finite"),
+        (np.eye(3), -1.0, "max_dist must be a finite distance of at least 0 px, got -1.0"),
+        (np.eye(3), float("nan"), "max_dist must be"),
+    ]:
+        with pytest.raises(ValueError, match=message):  # InputError: not an empty or a wrong answer
+            match(a, b, H, max_dist)
 
 
 def test_refine_recovers_a_homography_from_a_rough_guess_or_the_best_of_several(rng):
