@@ -11,6 +11,17 @@ from deepslam.errors import InputError
 from deepslam.geometry import path_length, rotation_angle
 
 
+def _check(estimate: np.ndarray, truth: np.ndarray) -> None:
+    """Raise ``InputError`` unless ``estimate`` and ``truth`` are finite (N, 4, 4) of the same N."""
+    if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
+        raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
+    unknown = ~(np.isfinite(estimate).all(axis=(1, 2)) & np.isfinite(truth).all(axis=(1, 2)))
+    if unknown.any():
+        raise InputError(
+            f"{int(unknown.sum())} of {len(unknown)} poses are not finite: leave out the frames without a pose or truth"
+        )
+
+
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
     """Least-squares (R, t, s) with target ~ s R source + t, for (N, 3) point sets (Umeyama 1991)."""
     mu_s, mu_t = source.mean(0), target.mean(0)
@@ -27,6 +38,7 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[n
 
 def align(estimate: np.ndarray, truth: np.ndarray, with_scale: bool) -> np.ndarray:
     """The estimate's poses moved (and scaled with Sim(3)) onto the ground truth by their positions."""
+    _check(estimate, truth)
     R, t, s = umeyama(estimate[:, :3, 3], truth[:, :3, 3], with_scale)
     aligned = estimate.copy()
     aligned[:, :3, :3] = R @ estimate[:, :3, :3]
@@ -58,6 +70,7 @@ def ate_rmse(estimate: np.ndarray, truth: np.ndarray, with_scale: bool = False) 
 def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Relative pose errors over frame pairs ``delta`` apart: (translation errors (M,), rotation
     errors (M,) in degrees), from E = (T_gt_i^-1 T_gt_j)^-1 (T_est_i^-1 T_est_j)."""
+    _check(estimate, truth)
     if len(estimate) <= delta:
         return np.zeros(0), np.zeros(0)
     rel_est = np.linalg.inv(estimate[:-delta]) @ estimate[delta:]
@@ -94,8 +107,7 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
         means (m, degrees); "final_drift_pct": the final position error as % of the true path length (no
         alignment: both start together); "scale_drift" (``scale_drift``); "path_length" (m); "frames"}.
     """
-    if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
-        raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
+    _check(estimate, truth)
     if len(estimate) < 2:
         raise InputError("drift needs at least 2 poses")
     if not 1 <= delta < len(estimate):

@@ -318,6 +318,13 @@ def test_drift_metrics(rng):
     assert summary["final_drift_pct"] == pytest.approx(100 / path_length(truth))
     with pytest.raises(ValueError):
         drift.summary(truth[:1], truth[:1])
+    unknown = truth.copy()
+    unknown[3] = np.nan  # a frame without truth, left in
+    for metric in (drift.ate_rmse, drift.rpe, drift.summary):
+        with pytest.raises(InputError, match="1 of 20 poses are not finite: leave out the frames without"):
+            metric(truth, unknown)
+        with pytest.raises(InputError, match=r"must both be \(N, 4, 4\), got \(20, 4, 4\) and \(19, 4, 4\)"):
+            metric(truth, truth[1:])
 
 
 def test_planar_world_with_oracle_recovers_the_trajectory():
