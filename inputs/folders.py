@@ -7,6 +7,7 @@ from typing import Iterator
 
 import numpy as np
 
+from deepslam.geometry import is_pose
 from deepslam.inputs import parsing
 from deepslam.inputs.calibration import Calibration, Rectifier
 from deepslam.inputs.images import image_sizes, read_image, to_gray
@@ -128,8 +129,7 @@ def _body_to_sensor(sensor: dict, where: Path) -> np.ndarray:
     if not isinstance(entry, dict):
         raise SourceError(f"{where}: T_BS must be a mapping with rows, cols and data, got {entry!r}")
     T = np.array(parsing.yaml_numbers(entry, "data", where, count=16)).reshape(4, 4)
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+    if not is_pose(T, tolerance=1e-3):
         raise SourceError(f"{where}: T_BS is not a rigid transform")
     return T
 
