@@ -11,6 +11,7 @@ from deepslam.backend.evaluation.consistency import CONSISTENT_PX, TrackObservat
 from deepslam.backend.evaluation.limit import batch_adjust, causal_adjust, over_limit
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
 from deepslam.backend.mapping import project
+from deepslam.errors import InputError
 from deepslam.frontend.config import TrackerConfig
 from deepslam.geometry import path_length
 from deepslam.sim.scenario import Scenario, ScenarioConfig
@@ -76,6 +77,16 @@ def test_the_limit_of_noisy_tracks_is_small_and_grows_with_the_noise():
     length = path_length(np.stack(poses))
     figures = [batch_adjust(_observed(poses, _scene(), K, noise=noise)).ate_se3 for noise in (0.5, 2.0)]
     assert 0 < figures[0] < 0.02 * length and figures[1] > 2 * figures[0]
+
+
+def test_the_limit_holds_the_scale_by_the_baseline_it_is_given():
+    poses = _circle(30)
+    observations = _observed(poses, _scene(), K, noise=0.5)
+    scales = {b: batch_adjust(observations, baseline=b).ate_se3 for b in (None, 5, 20)}
+    assert len(set(scales.values())) == 3  # each baseline's true length sets another scale
+    for outside in (0, 30, -1):
+        with pytest.raises(InputError, match="the baseline must be one of frames 1 to 29"):
+            batch_adjust(observations, baseline=outside)
 
 
 def test_the_causal_limit_places_each_frame_without_the_frames_after_it():

@@ -27,6 +27,7 @@ import numpy as np
 from deepslam.backend import drift
 from deepslam.backend.evaluation.consistency import TrackObservations, triangulate
 from deepslam.backend.mapping import calibration, pixel_noise, project
+from deepslam.errors import InputError
 from deepslam.geometry import constant_motion, vector_angle
 
 GAUGE_SIGMA = 1e-4  # rad and m, and a share of the first baseline: tighter, and Levenberg-Marquardt stalls
@@ -65,6 +66,8 @@ def batch_adjust(
     the adjustment places it; by default the first that spans ``min_initial_px`` (one baseline sets the scale of
     the whole adjustment to a few percent: docs/experiments.md)."""
     truth, focal = np.stack(observations.poses), float(observations.K[0][0, 0])
+    if baseline is not None and not 0 < baseline < len(truth):
+        raise InputError(f"the baseline must be one of frames 1 to {len(truth) - 1}, got {baseline}")
     projections = np.stack([observations.projection(frame) for frame in range(len(truth))])
     landmarks = _landmarks(observations, truth, projections, focal, config)
     placed = _placed_frames(landmarks, len(truth), config.min_observations)
@@ -76,7 +79,7 @@ def batch_adjust(
     for index in np.flatnonzero(placed):
         values.insert(gtsam.symbol("x", index), gtsam.Pose3(truth[index]))
     points = np.array([point for *_, point in landmarks]).reshape(-1, 3)
-    if baseline is None or not 0 < baseline < len(truth) or not placed[baseline]:
+    if baseline is None or not placed[baseline]:
         baseline = _first_baseline(truth, points, focal, config.min_initial_px, placed)
     _hold_gauge(graph, truth, baseline)
     noise, calibrations = pixel_noise(config.huber_px), [calibration(K) for K in observations.K]
