@@ -68,7 +68,8 @@ class Pipeline:
 
         Args:
             image: uint8 (H, W) grayscale, the same size in every frame.
-            K: (3, 3) camera matrix of the image.
+            K: (3, 3) camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` at the image's size (its principal
+                point within the image).
             stamp_ns: integer nanoseconds, increasing from frame to frame.
 
         Returns:
@@ -99,6 +100,14 @@ def _check_frame(image: np.ndarray, K: np.ndarray, stamp_ns: int, previous_ns: i
     K = np.asarray(K)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0):
         raise InputError(f"K must be a finite (3, 3) camera matrix with positive focal lengths, got {K.tolist()}")
+    if not np.allclose([K[1, 0], *K[2]], [0, 0, 0, 1], rtol=0, atol=1e-9):
+        raise InputError(f"K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (not transposed), got {K.tolist()}")
+    (h, w), (cx, cy) = image.shape, K[:2, 2]
+    if not (-0.5 < cx < w - 0.5 and -0.5 < cy < h - 0.5):
+        raise InputError(
+            f"K's principal point ({cx:g}, {cy:g}) is not inside the {h}x{w} image: K must be the camera matrix at "
+            "the images' size"
+        )
     if not isinstance(stamp_ns, (int, np.integer)):
         raise InputError(f"stamp_ns must be integer nanoseconds, got {stamp_ns!r}")
     if previous_ns is not None and stamp_ns <= previous_ns:

@@ -506,6 +506,8 @@ def test_the_pipeline_refuses_a_bad_frame_with_what_is_wrong_and_keeps_its_run()
         ((image.astype(np.float32), K, 20), "must be uint8 (H, W) grayscale, got float32 (120, 160)"),
         ((np.zeros((120, 160, 3), np.uint8), K, 20), "got uint8 (120, 160, 3)"),
         ((image, np.eye(2), 20), "K must be a finite (3, 3) camera matrix"),
+        ((image, K.T, 20), "K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (not transposed)"),
+        ((image, np.array([[200.0, 0, 159.5], [0, 200, 119.5], [0, 0, 1]]), 20), "principal point (159.5, 119.5)"),
         ((image, K, 20.5), "stamp_ns must be integer nanoseconds, got 20.5"),
         ((image, K, 10), "stamps must increase: 10 ns after 10 ns"),
         ((np.zeros((240, 320), np.uint8), K, 20), "frame 1 is 240x320, the first was 120x160"),
