@@ -142,6 +142,24 @@ def test_drift_names_logs_whole_and_measures_them_against_the_limit_of_their_tra
     assert "limit" not in analysis.analyse([named]).table()
 
 
+def test_drift_says_a_log_without_truth_has_no_drift_to_measure(oracle_log, tmp_path):
+    from dataclasses import replace as replaced
+
+    path, _ = oracle_log
+    frames = list(read_frames(path))
+    for with_truth, message in [
+        (0, "no frame has ground truth (/groundtruth/pose), so there is no drift to measure"),
+        (1, "fewer than 2 frames with both /groundtruth/pose and /estimate/pose"),
+    ]:
+        log = tmp_path / f"truth_{with_truth}.mcap"
+        with LogWriter(log, read_metadata(path)) as writer:
+            for index, frame in enumerate(frames):
+                writer.write(frame if index < with_truth else replaced(frame, T_groundtruth=None))
+        assert len(list(read_frames(log))) == len(frames)
+        with pytest.raises(LogError, match=re.escape(f"{log}: {message}")):
+            analysis.load_trajectories(log)
+
+
 def test_garbage_and_foreign_files_get_clear_errors(tmp_path):
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(os.urandom(5000))

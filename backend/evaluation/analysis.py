@@ -19,13 +19,19 @@ from deepslam.results import Result
 
 def load_trajectories(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stamps_ns (N,), ground truth (N, 4, 4), estimate (N, 4, 4)) of the frames that have both."""
-    stamps, truth, estimate = [], [], []
+    stamps, truth, estimate, truth_seen = [], [], [], False
     for frame in read_frames(path):
+        truth_seen |= frame.T_groundtruth is not None
         if frame.T_groundtruth is not None and frame.T_estimate is not None:
             stamps.append(frame.stamp_ns)
             truth.append(frame.T_groundtruth)
             estimate.append(frame.T_estimate)
     if len(stamps) < 2:
+        if not truth_seen:
+            raise LogError(
+                f"{path}: no frame has ground truth (/groundtruth/pose), so there is no drift to measure; "
+                "`deepslam report` draws a run without it"
+            )
         raise LogError(f"{path}: fewer than 2 frames with both /groundtruth/pose and /estimate/pose")
     return np.array(stamps, np.int64), np.stack(truth), np.stack(estimate)
 
