@@ -22,8 +22,13 @@ def check_image(image: np.ndarray, multiple_of: int = 1) -> np.ndarray:
         raise InputError(f"expected a uint8 image, got dtype {image.dtype}")
     if image.size == 0:
         raise InputError(f"expected a non-empty image, got shape {image.shape}")
-    if image.shape[0] % multiple_of or image.shape[1] % multiple_of:
-        raise InputError(f"image height and width must be divisible by {multiple_of}, got {image.shape}")
+    h, w = image.shape
+    if h % multiple_of or w % multiple_of:
+        fit = f"{max(h - h % multiple_of, multiple_of)}x{max(w - w % multiple_of, multiple_of)}"
+        raise InputError(
+            f"image height and width must be divisible by {multiple_of}, got {image.shape}: crop or resize it "
+            f"(to {fit}, for one)"
+        )
     return image
 
 

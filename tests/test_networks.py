@@ -124,8 +124,10 @@ def test_upsampled_detections_land_on_the_true_corners_in_input_pixels():
 
 def test_magicpoint_rejects_bad_images():
     model = MagicPoint(MagicPointNet())
-    with pytest.raises(ValueError, match="divisible by 8"):
+    with pytest.raises(ValueError, match="divisible by 8, got .100, 160.: crop or resize it .to 96x160, for one.$"):
         model.detect(np.zeros((100, 160), np.uint8))
+    with pytest.raises(ValueError, match="got .7, 9.: crop or resize it .to 8x8, for one.$"):
+        model.detect(np.zeros((7, 9), np.uint8))
     with pytest.raises(ValueError, match="grayscale"):
         model.detect(np.zeros((120, 160, 3), np.uint8))
     with pytest.raises(ValueError, match="non-empty"):
