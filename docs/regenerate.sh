@@ -43,6 +43,8 @@ deepslam eval pipeline --out docs/eval/pipeline_map_follow --jobs "$JOBS" --worl
 python examples/track_consistency.py > docs/eval/track_consistency.txt
 # each run's ATE over its limit, over the whole run and from the map's first frame on, and over the causal limit
 for F in oracle classical magic; do python examples/limit_split.py --frontend $F > docs/eval/limit_split_$F.txt; done
+# how precisely the map locates the oracle's frames, beside PnP on the true points of their observations
+python examples/located_precision.py > docs/eval/located_precision.txt
 # how well two views measure the frames before a map, by how far their tracks moved
 for F in oracle classical magic; do python examples/first_frames.py --frontend $F > docs/eval/first_frames_$F.txt; done
 # the map's bundle adjustment (gtsam) beside pycolmap's on the same windows

@@ -90,6 +90,20 @@ def test_limit_split_example_measures_each_run_over_its_limit_from_the_map_on(ca
     assert exit_info.value.code == 2 and "--seeds must be at least 1" in capsys.readouterr().err
 
 
+def test_located_precision_example_puts_pnp_on_true_points_under_the_located_frames(capsys, monkeypatch):
+    argv = ["located_precision.py", "--worlds", "room", "--trajectories", "forward", "--seeds", "1", "--frames", "30"]
+    monkeypatch.setattr("sys.argv", argv)
+    runpy.run_path(str(EXAMPLES / "located_precision.py"), run_name="__main__")
+    (row,) = [line.replace("/", " ").split() for line in capsys.readouterr().out.splitlines()[1:]]
+    located, measured, own, every, inliers, tracks = (float(value) for value in row[3:])
+    assert row[:3] == ["room", "forward", "0"] and 10 <= located < 30
+    assert 0 < every <= own < measured < 50  # true points locate better than the map; all tracks better than some
+    assert 12 <= inliers < tracks <= 150
+    monkeypatch.setattr("sys.argv", ["located_precision.py", "--frontend", "magic"])
+    with pytest.raises(SystemExit, match="only the oracle's tracks have true 3-D points"):
+        runpy.run_path(str(EXAMPLES / "located_precision.py"), run_name="__main__")
+
+
 def test_first_frames_example_recovers_a_direction_given_the_rotation_and_bins_frames_by_flow(capsys, monkeypatch):
     example = runpy.run_path(str(EXAMPLES / "first_frames.py"))
     rng = np.random.default_rng(0)
