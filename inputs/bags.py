@@ -33,7 +33,14 @@ class RosBag:
             self.reader.open()
         except Exception as error:  # noqa: BLE001 - rosbags raises its own kinds for any unreadable bag
             raise SourceError(f"{path}: not a readable ROS 2 bag ({error})") from None
-        topics = {c.topic: c.msgtype for c in self.reader.connections}
+        try:
+            self._check()
+        finally:
+            self.reader.close()  # open again only while frames() reads
+
+    def _check(self) -> None:
+        """Choose the topics, and read every image's stamp, the camera and the ground truth, before any work."""
+        options, topics = self.options, {c.topic: c.msgtype for c in self.reader.connections}
         self.image_topic = self._topic(options.image_topic, IMAGE_TYPES, topics, "image", required=True)
         self.info_topic = self._topic(options.camera_info_topic, ("sensor_msgs/msg/CameraInfo",), topics,
                                       "camera info", required=False)  # fmt: skip
@@ -153,9 +160,13 @@ class RosBag:
         return len(self.truth)
 
     def frames(self) -> Iterator[SourceFrame]:
-        for index, (connection, _, message) in enumerate(self._messages(self.image_topic)):
-            image = self.rectify(self._image(connection, message))
-            yield SourceFrame(self.stamps[index], image, self.rectify.K, self.truth.get(index))
+        self.reader.open()
+        try:
+            for index, (connection, _, message) in enumerate(self._messages(self.image_topic)):
+                image = self.rectify(self._image(connection, message))
+                yield SourceFrame(self.stamps[index], image, self.rectify.K, self.truth.get(index))
+        finally:
+            self.reader.close()
 
 
 def _pose_of(message, where: str) -> np.ndarray:

@@ -218,6 +218,25 @@ def test_bad_recorded_inputs_get_one_line_errors_before_any_work(recorded, tmp_p
     assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "x.mcap.partial").exists()
 
 
+def test_a_bag_is_closed_once_checked_refused_or_read(recorded, tmp_path):
+    import gc
+    import warnings
+
+    folder, frames, _ = recorded
+    bag = tmp_path / "bag"
+    _write_bag(bag, frames[:3], "mono8")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        with pytest.raises(SourceError, match="no topic /nope"):
+            open_source(bag, SourceOptions(image_topic="/nope"))
+        source = open_source(bag)
+        assert [len(list(source.frames())) for _ in range(2)] == [3, 3]  # read twice, in full
+        first = next(source.frames())  # a reading left halfway
+        del first
+        gc.collect()
+    assert not [warning for warning in caught if issubclass(warning.category, ResourceWarning)]
+
+
 def test_an_image_too_large_to_hold_is_refused_from_its_header_before_decoding(recorded, tmp_path):
     import struct
     import time
