@@ -144,6 +144,7 @@ def test_usage_errors_exit_2_and_runtime_errors_exit_1_with_one_line(tmp_path, c
     garbage.write_bytes(b"hello")
     for argv, message in [  # runtime errors: one line, exit 1
         (["drift", str(garbage), "--out", folder], "not an MCAP file"),
+        (["eval", "pipeline", "--worlds", "plane", "--trajectories", "forward", "--out", folder], "would hit the wall"),
     ]:
         assert main(argv) == 1, argv
         err = capsys.readouterr().err

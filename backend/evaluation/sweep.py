@@ -71,6 +71,11 @@ def pipeline_matrix(
     """One row per (world, trajectory, noise, lighting, front-end): the median ATE SE3 over seeds on
     photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
     cells, seeds = config.cells(), range(config.first_seed, config.first_seed + config.seeds)
+    if not cells and set(config.worlds) == {"plane"} and set(config.trajectories) == {"forward"}:
+        raise InputError(
+            "a sweep has no forward path in the plane world (the camera would hit the wall): add the room or the "
+            "clutter world, or another path"
+        )
     if not cells:
         raise InputError("the sweep needs at least one world, trajectory, noise magnitude, lighting and front-end")
     pieces = [(cell, seed, config, tracker_config) for cell in cells for seed in seeds]
