@@ -1,8 +1,9 @@
 """How precisely the map locates a frame, against what PnP could do from the frame's own observations: for each clean
 oracle run with the map (``--scale map``), over the frames PnP located, the median error (mm) of the measured pose
-from the keyframe (``FrameResult.T_ref_cur``) against the true one, and of PnP's pose on the true 3-D points of the
-same observations (its inliers: the map's landmarks), and of all the frame's tracks (as the limit's adjustment
-takes them), each started at the true pose; then how many of a located frame's tracks were its inliers.
+from the keyframe (``FrameResult.T_ref_cur``) against the true one, the same with its translation at the true
+length (what is left without the map's scale), and of PnP's pose on the true 3-D points of the same observations
+(its inliers: the map's landmarks), and of all the frame's tracks (as the limit's adjustment takes them), each
+started at the true pose; then how many of a located frame's tracks were its inliers.
 The oracle's track ids name the world's landmarks, so only its tracks have true 3-D points.
 
     python examples/located_precision.py --worlds room clutter --trajectories forward
@@ -36,8 +37,8 @@ def pnp_error_mm(world: np.ndarray, pixels: np.ndarray, K: np.ndarray, T_world_c
 
 
 def located(world: str, trajectory: str, seed: int, frames: int) -> np.ndarray:
-    """One run's located frames (F, 5): the measured pose's error from its keyframe (mm), PnP's on the true points
-    of its inliers and of all its tracks (mm), its inliers and its tracks."""
+    """One run's located frames (F, 6): the measured pose's error from its keyframe (mm), the same at the true
+    length (mm), PnP's on the true points of its inliers and of all its tracks (mm), its inliers and its tracks."""
     scenario = Scenario(ScenarioConfig(world=world, trajectory=trajectory, frames=frames, seed=seed))
     truth, points = np.stack([frame.T_world_cam for frame in scenario]), scenario.world.landmarks
     results = []
@@ -52,13 +53,16 @@ def located(world: str, trajectory: str, seed: int, frames: int) -> np.ndarray:
             continue
         k, K, inliers = result.index, scenario.K, result.relative.inliers
         T_true = np.linalg.inv(truth[result.reference]) @ truth[k]
-        measured = 1e3 * float(np.linalg.norm(result.T_ref_cur[:3, 3] - T_true[:3, 3]))
+        t, t_true = result.T_ref_cur[:3, 3], T_true[:3, 3]
+        measured = 1e3 * float(np.linalg.norm(t - t_true))
+        length = np.linalg.norm(t_true) / max(float(np.linalg.norm(t)), 1e-12)
+        unscaled = 1e3 * float(np.linalg.norm(t * length - t_true))
         ids = result.tracks.ids[result.correspondences[inliers, 1]]
         own = pnp_error_mm(points[ids], result.measured_points[inliers].astype(np.float64), K, truth[k])
         tracks = result.tracks
         every = pnp_error_mm(points[tracks.ids], tracks.points.astype(np.float64), K, truth[k])
-        rows.append((measured, own, every, int(inliers.sum()), len(tracks.ids)))
-    return np.array(rows).reshape(-1, 5)
+        rows.append((measured, unscaled, own, every, int(inliers.sum()), len(tracks.ids)))
+    return np.array(rows).reshape(-1, 6)
 
 
 def main() -> None:
@@ -66,16 +70,19 @@ def main() -> None:
     if grid.frontend != "oracle":
         sys.exit("located_precision.py: only the oracle's tracks have true 3-D points (--frontend oracle)")
     torch.set_num_threads(1)
-    print(f"{'world':<7} {'path':<8} seed  located  measured mm  PnP, its inliers  PnP, all tracks  inliers / tracks")
+    print(
+        f"{'world':<7} {'path':<8} seed  located  measured mm  at true length  PnP, its inliers  PnP, all tracks  "
+        "inliers / tracks"
+    )
     for world, path, seed in grid.runs:
         rows = located(world, path, seed, grid.frames)
         if not len(rows):
             print(f"{world:<7} {path:<8} {seed:>4}  {0:>7}")
             continue
-        measured, own, every, inliers, tracks = np.median(rows, axis=0)
+        measured, unscaled, own, every, inliers, tracks = np.median(rows, axis=0)
         print(
-            f"{world:<7} {path:<8} {seed:>4}  {len(rows):>7}  {measured:>11.1f}  {own:>16.1f}  {every:>15.1f}  "
-            f"{inliers:>7.0f} / {tracks:<4.0f}"
+            f"{world:<7} {path:<8} {seed:>4}  {len(rows):>7}  {measured:>11.1f}  {unscaled:>14.1f}  {own:>16.1f}  "
+            f"{every:>15.1f}  {inliers:>7.0f} / {tracks:<4.0f}"
         )
 
 

@@ -95,9 +95,10 @@ def test_located_precision_example_puts_pnp_on_true_points_under_the_located_fra
     monkeypatch.setattr("sys.argv", argv)
     runpy.run_path(str(EXAMPLES / "located_precision.py"), run_name="__main__")
     (row,) = [line.replace("/", " ").split() for line in capsys.readouterr().out.splitlines()[1:]]
-    located, measured, own, every, inliers, tracks = (float(value) for value in row[3:])
+    located, measured, unscaled, own, every, inliers, tracks = (float(value) for value in row[3:])
     assert row[:3] == ["room", "forward", "0"] and 10 <= located < 30
     assert 0 < every <= own < measured < 50  # true points locate better than the map; all tracks better than some
+    assert 0 < unscaled < measured  # the map's scale is part of its error
     assert 12 <= inliers < tracks <= 150
     monkeypatch.setattr("sys.argv", ["located_precision.py", "--frontend", "magic"])
     with pytest.raises(SystemExit, match="only the oracle's tracks have true 3-D points"):
