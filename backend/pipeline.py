@@ -76,7 +76,7 @@ class Pipeline:
             ``FrameResult``: tracks, the relative pose to its keyframe, ``T_world_cam`` (4, 4) as the graph
             has it now, and diagnostics.
         """
-        _check_frame(image, K, stamp_ns, self.stamps_ns[-1] if self.stamps_ns else None)
+        K = _check_frame(image, K, stamp_ns, self.stamps_ns[-1] if self.stamps_ns else None)
         if self.shape is not None and image.shape != self.shape:
             raise InputError(
                 f"frame {len(self.stamps_ns)} is {image.shape[0]}x{image.shape[1]}, the first was "
@@ -92,12 +92,15 @@ class Pipeline:
         return self.odometry.poses()
 
 
-def _check_frame(image: np.ndarray, K: np.ndarray, stamp_ns: int, previous_ns: int | None) -> None:
-    """Raise ``InputError`` naming what is wrong with a frame."""
+def _check_frame(image: np.ndarray, K, stamp_ns: int, previous_ns: int | None) -> np.ndarray:
+    """K as a float64 (3, 3) array, or ``InputError`` naming what is wrong with a frame."""
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 2:
         kind = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
         raise InputError(f"the image must be uint8 (H, W) grayscale, got {kind}")
-    K = np.asarray(K)
+    try:
+        K = np.asarray(K, np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"K must be a (3, 3) array of numbers, got {K!r}") from None
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0):
         raise InputError(f"K must be a finite (3, 3) camera matrix with positive focal lengths, got {K.tolist()}")
     if not np.allclose([K[1, 0], *K[2]], [0, 0, 0, 1], rtol=0, atol=1e-9):
@@ -112,3 +115,4 @@ def _check_frame(image: np.ndarray, K: np.ndarray, stamp_ns: int, previous_ns: i
         raise InputError(f"stamp_ns must be integer nanoseconds, got {stamp_ns!r}")
     if previous_ns is not None and stamp_ns <= previous_ns:
         raise InputError(f"stamps must increase: {stamp_ns} ns after {previous_ns} ns")
+    return K

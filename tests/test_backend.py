@@ -507,6 +507,7 @@ def test_the_pipeline_refuses_a_bad_frame_with_what_is_wrong_and_keeps_its_run()
         ((np.zeros((120, 160, 3), np.uint8), K, 20), "got uint8 (120, 160, 3)"),
         ((image, np.eye(2), 20), "K must be a finite (3, 3) camera matrix"),
         ((image, K.T, 20), "K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (not transposed)"),
+        ((image, [["fx", 0, 79.5], [0, 100, 59.5], [0, 0, 1]], 20), "K must be a (3, 3) array of numbers, got [['fx'"),
         ((image, np.array([[200.0, 0, 159.5], [0, 200, 119.5], [0, 0, 1]]), 20), "principal point (159.5, 119.5)"),
         ((image, K, 20.5), "stamp_ns must be integer nanoseconds, got 20.5"),
         ((image, K, 10), "stamps must increase: 10 ns after 10 ns"),
@@ -515,6 +516,17 @@ def test_the_pipeline_refuses_a_bad_frame_with_what_is_wrong_and_keeps_its_run()
         with pytest.raises(InputError, match=re.escape(message)):
             pipeline.process(*frame)
     assert pipeline.process(image, K, 20).index == 1 and len(pipeline.trajectory()) == 2
+
+
+def test_the_pipeline_takes_k_as_nested_lists_as_it_takes_the_array():
+    frames = list(Scenario(ScenarioConfig(world="room", trajectory="circle", frames=6, seed=0)))
+    trajectories = []
+    for as_given in (np.asarray, lambda K: K.tolist()):
+        pipeline = Pipeline(PipelineConfig(TrackerConfig("classical")))
+        results = [pipeline.process(f.image, as_given(f.K), i) for i, f in enumerate(frames)]
+        assert not any(result.lost for result in results)
+        trajectories.append(pipeline.trajectory())
+    np.testing.assert_array_equal(*trajectories)
 
 
 def test_the_pipeline_refuses_an_origin_that_is_no_pose_and_a_config_of_another_kind():
