@@ -167,6 +167,11 @@ class Odometry:
         config = config or OdometryConfig()
         if config.scale == "plane" and not config.plane_distance:
             raise InputError("scale 'plane' needs the first camera's distance to the dominant plane")
+        if step_lengths is not None and not callable(step_lengths):
+            raise InputError(
+                "step_lengths must be a function (i, j) -> the true distance (m) between the cameras of frames i and "
+                f"j, or None; got a {type(step_lengths).__name__}"
+            )
         if config.scale == "gt" and step_lengths is None:
             raise InputError(
                 "scale 'gt' takes each step's length from ground truth, which an evaluation passes in "

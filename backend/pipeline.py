@@ -24,8 +24,9 @@ class Pipeline:
         config: the front-end and the odometry (``PipelineConfig``).
         tracker: a front-end of one's own instead of the one ``config.tracker`` describes.
         origin: ``T_world_cam`` (4, 4) of the first frame (default: the identity).
-        step_lengths: true step lengths for ``scale="gt"`` (evaluation only) and the first baseline of
-            ``scale="map"`` (where the input has truth; without, the map's unit is its first baseline).
+        step_lengths: a function (i, j) -> the true distance (m) between the cameras of frames i and j, for
+            ``scale="gt"`` (evaluation only) and the first baseline of ``scale="map"`` (where the input has truth;
+            without, the map's unit is its first baseline).
 
     Example:
         >>> import numpy as np

@@ -540,6 +540,8 @@ def test_the_pipeline_refuses_an_origin_that_is_no_pose_and_a_config_of_another_
     np.testing.assert_allclose(pipeline.process(image, K, 0).T_world_cam, turned, atol=1e-6)
     with pytest.raises(InputError, match="config must be a PipelineConfig .its tracker and odometry., got Odometry"):
         Pipeline(OdometryConfig())
+    with pytest.raises(InputError, match="step_lengths must be a function .i, j. -> the true distance .m.+got a list"):
+        Pipeline(PipelineConfig(TrackerConfig("classical"), OdometryConfig(scale="gt")), step_lengths=[0.1] * 10)
 
 
 def test_magic_tracks_are_carried_only_where_relative_poses_may_come_from_a_homography():
