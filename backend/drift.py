@@ -11,8 +11,13 @@ from deepslam.errors import InputError
 from deepslam.geometry import path_length, rotation_angle
 
 
-def _check(estimate: np.ndarray, truth: np.ndarray) -> None:
-    """Raise ``InputError`` unless ``estimate`` and ``truth`` are finite (N, 4, 4) of the same N."""
+def _check(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``estimate`` and ``truth`` as float64 arrays, or ``InputError`` unless they are finite (N, 4, 4) of the same
+    N."""
+    try:
+        estimate, truth = np.asarray(estimate, np.float64), np.asarray(truth, np.float64)
+    except (TypeError, ValueError):
+        raise InputError("trajectories must be (N, 4, 4) arrays of numbers") from None
     if estimate.shape != truth.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
         raise InputError(f"trajectories must both be (N, 4, 4), got {estimate.shape} and {truth.shape}")
     unknown = ~(np.isfinite(estimate).all(axis=(1, 2)) & np.isfinite(truth).all(axis=(1, 2)))
@@ -20,6 +25,7 @@ def _check(estimate: np.ndarray, truth: np.ndarray) -> None:
         raise InputError(
             f"{int(unknown.sum())} of {len(unknown)} poses are not finite: leave out the frames without a pose or truth"
         )
+    return estimate, truth
 
 
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
@@ -38,7 +44,7 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[n
 
 def align(estimate: np.ndarray, truth: np.ndarray, with_scale: bool) -> np.ndarray:
     """The estimate's poses moved (and scaled with Sim(3)) onto the ground truth by their positions."""
-    _check(estimate, truth)
+    estimate, truth = _check(estimate, truth)
     R, t, s = umeyama(estimate[:, :3, 3], truth[:, :3, 3], with_scale)
     aligned = estimate.copy()
     aligned[:, :3, :3] = R @ estimate[:, :3, :3]
@@ -63,14 +69,17 @@ def ate_rmse(estimate: np.ndarray, truth: np.ndarray, with_scale: bool = False) 
         >>> round(ate_rmse(estimate, truth), 3), round(ate_rmse(estimate, truth, with_scale=True), 3)
         (0.816, 0.0)
     """
-    aligned = align(estimate, truth, with_scale)
+    aligned, truth = align(estimate, truth, with_scale), np.asarray(truth, np.float64)
     return float(np.sqrt(np.mean(np.sum((aligned[:, :3, 3] - truth[:, :3, 3]) ** 2, 1))))
 
 
 def rpe(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Relative pose errors over frame pairs ``delta`` apart: (translation errors (M,), rotation
-    errors (M,) in degrees), from E = (T_gt_i^-1 T_gt_j)^-1 (T_est_i^-1 T_est_j)."""
-    _check(estimate, truth)
+    errors (M,) in degrees), from E = (T_gt_i^-1 T_gt_j)^-1 (T_est_i^-1 T_est_j); none where ``delta`` is the number
+    of poses or more."""
+    estimate, truth = _check(estimate, truth)
+    if delta < 1:
+        raise InputError(f"the RPE's delta must be at least 1 frame, got {delta}")
     if len(estimate) <= delta:
         return np.zeros(0), np.zeros(0)
     rel_est = np.linalg.inv(estimate[:-delta]) @ estimate[delta:]
@@ -84,6 +93,7 @@ def scale_drift(estimate: np.ndarray, truth: np.ndarray) -> float:
     frames, divided by the same in the first quarter (lengths between every quarter / 4-th frame); 1: no scale
     drift; NaN for fewer than 8 frames or a quarter where the camera stood still. ``estimate``, ``truth``:
     (N, 4, 4) ``T_world_cam`` of the same frames."""
+    estimate, truth = _check(estimate, truth)
     quarter = len(truth) // 4
     if quarter < 2:
         return float("nan")
@@ -107,7 +117,7 @@ def summary(estimate: np.ndarray, truth: np.ndarray, delta: int = 1) -> dict[str
         means (m, degrees); "final_drift_pct": the final position error as % of the true path length (no
         alignment: both start together); "scale_drift" (``scale_drift``); "path_length" (m); "frames"}.
     """
-    _check(estimate, truth)
+    estimate, truth = _check(estimate, truth)
     if len(estimate) < 2:
         raise InputError("drift needs at least 2 poses")
     if not 1 <= delta < len(estimate):

@@ -325,6 +325,12 @@ def test_drift_metrics(rng):
             metric(truth, unknown)
         with pytest.raises(InputError, match=r"must both be \(N, 4, 4\), got \(20, 4, 4\) and \(19, 4, 4\)"):
             metric(truth, truth[1:])
+        with pytest.raises(InputError, match=r"trajectories must be \(N, 4, 4\) arrays of numbers"):
+            metric(truth, [["a"]])
+    assert drift.summary(shifted.tolist(), truth.tolist()) == summary  # lists of poses read as arrays
+    for delta in (0, -1):  # -1 once compared the first frame's step with the last's
+        with pytest.raises(InputError, match=f"the RPE's delta must be at least 1 frame, got {delta}"):
+            drift.rpe(moved, truth, delta)
 
 
 def test_planar_world_with_oracle_recovers_the_trajectory():
