@@ -246,14 +246,16 @@ def _check_inputs(paths: list[Path]) -> None:
 
 def _drift(args: argparse.Namespace) -> None:
     from deepslam.backend.evaluation import analysis
+    from deepslam.files import distinct_names
 
     _check_inputs(args.logs)
     _check_folder(args.out)
     if (args.out / "drift.txt").exists():
         raise _UsageError(f"--out {args.out} holds an earlier drift's results; give another folder or remove them")
     _save(analysis.analyse(args.logs, args.delta, args.limit), args.out)
+    names = distinct_names(args.logs)
     for path in (
-        [path for log_path in args.logs for path in analysis.export_tum(log_path, args.out)] if args.tum else []
+        [path for run in args.logs for path in analysis.export_tum(run, args.out, names[str(run)])] if args.tum else []
     ):
         log.info(f"wrote {path}")
 

@@ -61,3 +61,22 @@ def written(path: str | Path, inputs: tuple[str | Path, ...] = ()) -> Iterator[P
         partial.unlink(missing_ok=True)
         raise
     partial.replace(path)
+
+
+def distinct_names(paths: list[str | Path]) -> dict[str, str]:
+    """A name for each of ``paths`` (by ``str(path)``) to show it by: its file name, or where files of the same name
+    come from different folders, as many of its last folders as tell them apart (``a/run.mcap``, ``b/run.mcap``).
+
+    Example:
+        >>> distinct_names(["out/a/run.mcap", "out/b/run.mcap", "lk.mcap"])
+        {'out/a/run.mcap': 'a/run.mcap', 'out/b/run.mcap': 'b/run.mcap', 'lk.mcap': 'lk.mcap'}
+    """
+    parts = {str(path): Path(path).parts for path in paths}
+    names = {}
+    for key, own in parts.items():
+        kin = [other for other in set(parts.values()) if other != own and other[-1:] == own[-1:]]
+        depth = 1
+        while depth < len(own) and any(other[-depth:] == own[-depth:] for other in kin):
+            depth += 1
+        names[key] = str(Path(*own[-depth:]))
+    return names

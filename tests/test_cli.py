@@ -67,6 +67,16 @@ def test_run_and_drift_end_to_end(tmp_path, capsys):
         main(["drift", str(log), "--out", str(tmp_path / "drift")])
     assert exit_info.value.code == 2 and "holds an earlier drift's results" in capsys.readouterr().err
     assert (tmp_path / "drift" / "drift.txt").read_bytes() == written
+    twin = tmp_path / "again" / "run.mcap"  # the same file name in another folder
+    twin.parent.mkdir()
+    twin.write_bytes(log.read_bytes())
+    assert main(["drift", str(log), str(twin), "--out", str(tmp_path / "both"), "--tum"]) == 0
+    rows = (tmp_path / "both" / "drift.txt").read_text().splitlines()[1:3]
+    assert [row.split()[0] for row in rows] == [f"{tmp_path.name}/run.mcap", "again/run.mcap"]
+    tum = sorted(path.name for path in (tmp_path / "both").glob("*.tum"))
+    assert tum == [
+        f"{name}.{kind}.tum" for name in ("again_run", f"{tmp_path.name}_run") for kind in ("estimate", "groundtruth")
+    ]
 
 
 @pytest.mark.parametrize(

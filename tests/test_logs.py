@@ -475,6 +475,12 @@ def test_report_compares_runs_and_says_what_a_log_lacks(oracle_log, tmp_path):
     assert page.count("<tr>") == 3 and ">oracle<" in page  # a row per readable run
     assert main(["report", str(junk), "--out", str(tmp_path / "none.html")]) == 1
     assert not (tmp_path / "none.html").exists()
+    twin = tmp_path / "again" / path.name  # the same file name in another folder: told apart by it
+    twin.parent.mkdir()
+    twin.write_bytes(path.read_bytes())
+    assert main(["report", str(path), str(twin), "--out", str(tmp_path / "twins.html")]) == 0
+    titles = re.findall(r"<h3>([^<]*)</h3>", (tmp_path / "twins.html").read_text())
+    assert titles == [f"{path.parent.name}/{path.stem}", f"again/{path.stem}"]
 
 
 def test_a_cut_off_log_is_warned_of_once_by_every_command_that_reads_it(oracle_log, tmp_path, capsys):

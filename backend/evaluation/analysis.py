@@ -12,6 +12,7 @@ from deepslam.backend import drift
 from deepslam.backend.evaluation.config import DriftConfig
 from deepslam.backend.evaluation.consistency import TrackObservations
 from deepslam.backend.evaluation.limit import batch_adjust, over_limit
+from deepslam.files import distinct_names
 from deepslam.geometry import quaternion_from_matrix
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 from deepslam.results import Result
@@ -107,8 +108,10 @@ class DriftComparison(Result):
 
 
 def table_lines(results: dict[str, dict]) -> list[str]:
-    """A row per log, named whole by its file name; the limit's columns where the figures have them."""
-    width = max([len("log")] + [len(Path(path).name) for path in results])
+    """A row per log, named whole by its file name (with its folders where names repeat: ``distinct_names``); the
+    limit's columns where the figures have them."""
+    names = distinct_names(list(results))
+    width = max([len("log")] + [len(name) for name in names.values()])
     limit = any("limit_ate_se3" in r for r in results.values())
     header = (
         f"{'log':<{width}} {'frontend':<9} {'scale':<6} {'ATE SE3':>8} {'ATE Sim3':>8} {'RPE m':>8} {'RPE deg':>8} "
@@ -117,7 +120,7 @@ def table_lines(results: dict[str, dict]) -> list[str]:
     rows = [header]
     for path, r in results.items():
         rows.append(
-            f"{Path(path).name:<{width}} {r['frontend']:<9} {r['scale']:<6} "
+            f"{names[path]:<{width}} {r['frontend']:<9} {r['scale']:<6} "
             f"{r['ate_se3']:>8.4f} {r['ate_sim3']:>8.4f} "
             f"{r['rpe_trans']:>8.4f} {r['rpe_rot_deg']:>8.3f} {r['final_drift_pct']:>8.2f} "
             f"{r.get('scale_drift', float('nan')):>8.3f} {r['path_length']:>7.2f} "
@@ -138,9 +141,10 @@ def save_plots(paths: list[str | Path], out_dir: Path, delta: int = DriftConfig.
 
     out_dir.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    names = distinct_names(paths)
     for index, path in enumerate(paths):
         stamps, truth, estimate = load_trajectories(path)
-        label = Path(path).stem
+        label = str(Path(names[str(path)]).with_suffix(""))
         if index == 0:
             shown = np.sort(np.argsort(truth[:, :3, 3].std(0))[1:])  # the two axes with the most motion
             axes[0].plot(truth[:, shown[0], 3], truth[:, shown[1], 3], "k-", lw=2, label="ground truth")
@@ -166,13 +170,15 @@ def save_plots(paths: list[str | Path], out_dir: Path, delta: int = DriftConfig.
     return [path]
 
 
-def export_tum(path: str | Path, out_dir: Path) -> list[Path]:
-    """Write <log>.groundtruth.tum and <log>.estimate.tum: "t x y z qx qy qz qw" per line, t in seconds."""
+def export_tum(path: str | Path, out_dir: Path, name: str | None = None) -> list[Path]:
+    """Write NAME.groundtruth.tum and NAME.estimate.tum: "t x y z qx qy qz qw" per line, t in seconds; NAME: the
+    log's file name without its suffix, or ``name`` (its folders, as ``distinct_names`` gives them, joined by _)."""
     stamps, truth, estimate = load_trajectories(path)
     out_dir.mkdir(parents=True, exist_ok=True)
+    stem = str(Path(name or Path(path).name).with_suffix("")).replace("/", "_")
     written = []
-    for name, poses in (("groundtruth", truth), ("estimate", estimate)):
-        target = out_dir / f"{Path(path).stem}.{name}.tum"
+    for kind, poses in (("groundtruth", truth), ("estimate", estimate)):
+        target = out_dir / f"{stem}.{kind}.tum"
         lines = [
             f"{t / 1e9:.9f} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *quaternion_from_matrix(T[:3, :3])))
             for t, T in zip(stamps, poses, strict=False)

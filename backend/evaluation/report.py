@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from deepslam.backend import drift
-from deepslam.files import written
+from deepslam.files import distinct_names, written
 from deepslam.logs.frames import LogFrame
 from deepslam.logs.reader import LogError, read_frames, read_metadata
 
@@ -39,10 +39,11 @@ class Run:
     metadata: dict
     notes: list[str] = field(default_factory=list)  # what is missing or was lost
     lost: list[str] = field(default_factory=list)  # what reading the file lost (a cut-off or damaged log)
+    name: str = ""  # what to show it by, where its file name is not enough (``distinct_names``)
 
     @property
     def label(self) -> str:
-        return self.path.stem
+        return str(Path(self.name).with_suffix("")) if self.name else self.path.stem
 
     @cached_property
     def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -297,6 +298,9 @@ def write_report(paths: list[Path], out: Path) -> list[str]:
             unreadable.append(str(error))
     if not runs:
         raise LogError("no log could be read: " + "; ".join(unreadable))
+    names = distinct_names([run.path for run in runs])
+    for run in runs:
+        run.name = names[str(run.path)]
     sections = [f"<p class='note'>{html.escape(line)}</p>" for line in unreadable]
     sections += ["<h2>Drift</h2>", _drift_table(runs), trajectory_figures(runs), "<h2>Tracking</h2>",
                  tracking_figure(runs), "<h2>Map and scale</h2>", map_figure(runs),
