@@ -19,10 +19,13 @@ from deepslam.frontend.training.loop import LoopConfig, export_weights, train
 from deepslam.frontend.training.surgery import load_weights
 
 
-def test_magicpoint_training_runs_and_resumes(tmp_path):
+def test_magicpoint_training_runs_and_resumes(tmp_path, caplog):
     config = train_magicpoint.TrainConfig(iterations=2, batch=4, validate_every=1, validation_per_category=1)
     figures = train_magicpoint.run(tmp_path, config)
     assert 0 <= figures["map_noisy"] <= 1
+    with caplog.at_level("INFO", logger="deepslam"):
+        assert train_magicpoint.run(tmp_path, config) == figures  # done: said so, the figures as they were
+    assert f"{tmp_path / 'last.pt'} is at step 2 of --iterations 2: nothing to train" in caplog.text
     longer = train_magicpoint.TrainConfig(iterations=3, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path, longer)
     assert torch.load(tmp_path / "last.pt", weights_only=False)["step"] == 3

@@ -226,6 +226,11 @@ def train(
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     rng = np.random.default_rng(config.seed if ranks.world == 1 else [config.seed, ranks.rank])
     state, (step, best, elapsed, history) = _resume(model, optimizer, rng, config, out_dir / "last.pt", ranks)
+    if step >= config.iterations and ranks.leader:
+        log.info(
+            f"{out_dir / 'last.pt'} is at step {step} of --iterations {config.iterations}: nothing to train; "
+            "raise --iterations to train on"
+        )
     if ranks.world > 1:
         ranks.share(model)
     ema = _moving_average(model, config.ema, state)
