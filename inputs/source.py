@@ -103,27 +103,40 @@ def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> S
         ``SourceError`` (one line naming the file and what is wrong) for an input it cannot run on.
     """
     from deepslam.inputs.bags import RosBag
+    from deepslam.inputs.video import VideoFile
+
+    path = Path(path)
+    kind = _kind(path, options)
+    if options.fps is not None and kind is not VideoFile:
+        raise SourceError(f"{path}: --fps applies to video files only (this {kind.kind} has its own stamps)")
+    topics = [name for name in ("image_topic", "camera_info_topic", "groundtruth_topic") if getattr(options, name)]
+    if topics and kind is not RosBag:
+        raise SourceError(f"{path}: --{topics[0].replace('_', '-')} applies to ROS 2 bags only, not to a {kind.kind}")
+    return kind(path, options)
+
+
+def _kind(path: Path, options: SourceOptions) -> type:
+    """The class that reads ``path``: told apart by what it contains (a deepslam log asked for topics is read as
+    the ROS 2 bag it also is)."""
+    from deepslam.inputs.bags import RosBag
     from deepslam.inputs.deepslam_log import DeepslamLog
     from deepslam.inputs.folders import EurocFolder, TumFolder
     from deepslam.inputs.video import VIDEO_SUFFIXES, VideoFile
     from deepslam.logs.reader import LogError, check_log, read_metadata
 
-    path = Path(path)
     if not path.exists():
         raise SourceError(f"{path}: no such file or folder")
     if path.is_dir():
         if (path / "rgb.txt").exists():
-            return TumFolder(path, options)
+            return TumFolder
         if (path / "cam0" / "data.csv").exists() or (path / "mav0" / "cam0" / "data.csv").exists():
-            return EurocFolder(path, options)
+            return EurocFolder
         if (path / "metadata.yaml").exists():
-            return RosBag(path, options)
+            return RosBag
         raise SourceError(f"{path}: a folder that is neither a TUM RGB-D (rgb.txt), an EuRoC/ASL (cam0/data.csv) "
                           f"nor a rosbag2 folder (metadata.yaml)")  # fmt: skip
     if path.suffix.lower() in VIDEO_SUFFIXES:
-        return VideoFile(path, options)
-    if options.fps is not None:
-        raise SourceError(f"{path}: --fps applies to video files only (this input has its own stamps)")
+        return VideoFile
     try:
         check_log(path)
     except LogError as error:
@@ -133,4 +146,4 @@ def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> S
         is_ours = not any((options.image_topic, options.camera_info_topic, options.groundtruth_topic))
     except LogError:
         is_ours = False
-    return DeepslamLog(path, options) if is_ours else RosBag(path, options)
+    return DeepslamLog if is_ours else RosBag

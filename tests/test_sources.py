@@ -193,16 +193,21 @@ def test_bad_recorded_inputs_get_one_line_errors_before_any_work(recorded, tmp_p
     folder, frames, _ = recorded
     bag = tmp_path / "bag"
     _write_bag(bag, frames[:3], "mono8")
+    (tmp_path / "clip.mp4").write_bytes(b"not read: the option is refused first")
     for source, options, message in [
         (bag, SourceOptions(image_topic="/nope"), "no topic /nope; the bag has /mocap/odom"),
         (bag, SourceOptions(groundtruth_topic="/robot/front/info"), "is a sensor_msgs/msg/CameraInfo, not one of"),
         (tmp_path, SourceOptions(), "neither a TUM RGB-D"),
         (tmp_path / "missing", SourceOptions(), "no such file or folder"),
+        (bag, SourceOptions(fps=5.0), "--fps applies to video files only .this ROS 2 bag has its own stamps."),
+        (tmp_path / "clip.mp4", SourceOptions(image_topic="/cam"), "--image-topic applies to ROS 2 bags only, not to"),
     ]:
         with pytest.raises(SourceError, match=message):
             open_source(source, options)
     tum = tmp_path / "tum"
     _write_tum(tum, frames[:3])
+    with pytest.raises(SourceError, match="--groundtruth-topic applies to ROS 2 bags only, not to a TUM RGB-D folder"):
+        open_source(tum, SourceOptions(groundtruth_topic="/mocap"))
     with pytest.raises(SourceError, match="carries no calibration"):
         open_source(tum)
     (tum / "rgb.txt").write_text((tum / "rgb.txt").read_text().replace(".", ".9", 1))  # the first frame comes last
