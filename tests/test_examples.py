@@ -53,6 +53,12 @@ def test_own_frames_example_runs_the_pipeline_on_a_folder_of_images(tmp_path, ca
     assert len(lines) == 13 and lines[-1].startswith("12 frames")
     assert not any(line.endswith("lost True") for line in lines[:-1])
     assert float(lines[-1].split("path length ")[1].split()[0]) > 0  # it moved
+    (tmp_path / "012.png").write_bytes(b"not an image")  # sorted after the frames: they run first
+    for extra, message in [([], "012.png: not a readable image"), (["--fps", "0"], "--fps must be positive")]:
+        monkeypatch.setattr("sys.argv", [*argv, *extra])
+        with pytest.raises(SystemExit) as exit_info:  # one line, no traceback
+            runpy.run_path(str(EXAMPLES / "own_frames.py"), run_name="__main__")
+        assert exit_info.value.code in (1, 2) and message in capsys.readouterr().err
 
 
 def test_the_sample_calibration_file_reads_as_a_camera():
