@@ -77,7 +77,7 @@ def with_pycolmap(local_map: mapping.LocalMap) -> tuple[np.ndarray, dict[int, np
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--oracle-noise", type=float, default=0.5, help="pixel noise of the oracle's tracks")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds of each run")
     parser.add_argument("--frames", type=int, default=60, help="frames a run (default: 60)")

@@ -26,7 +26,7 @@ def shifted_pairs(images: list[np.ndarray], shift_px: float) -> list[tuple[list[
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--detectors", nargs="+", default=["MagicPointS", "MagicPointS-HA", "Harris"],
                         help="names as `deepslam eval realimages --detectors` takes them")  # fmt: skip
     parser.add_argument("--weights", nargs="*", default=[], type=Path,

@@ -27,7 +27,7 @@ def measure(world: str, trajectory: str, seed: int, follow: bool, frames: int) -
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--worlds", nargs="+", default=["room", "clutter"], choices=["plane", "room", "clutter"],
                         help="simulated worlds")  # fmt: skip
     parser.add_argument("--trajectory", default="circle", help="camera path of every run")

@@ -36,7 +36,7 @@ def survival(previous, frame, tracker: MagicTracker, live: np.ndarray, ids: np.n
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--world", default="room", choices=("plane", "room"), help="simulated world")
     parser.add_argument("--path", default="random", help="camera path: circle, figure8, line or random")
     parser.add_argument("--seed", type=int, default=0, help="the world's seed (textures, layout)")

@@ -16,6 +16,20 @@ def test_example_runs(name, capsys):
     assert capsys.readouterr().out.strip()
 
 
+@pytest.mark.parametrize(
+    "name",
+    ["bundle_adjusters.py", "first_frames.py", "limit_split.py", "located_precision.py", "own_frames.py",
+     "shift_repeatability.py", "subpixel_precision.py", "track_consistency.py", "track_survival.py"],
+)  # fmt: skip
+def test_example_help_says_its_whole_first_paragraph(name, capsys, monkeypatch):
+    monkeypatch.setattr("sys.argv", [name, "--help"])
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_path(str(EXAMPLES / name), run_name="__main__")
+    paragraph = (EXAMPLES / name).read_text().split('"""')[1].split("\n\n")[0].split()
+    shown = capsys.readouterr().out.split()
+    assert exit_info.value.code == 0 and " ".join(paragraph[-4:]) in " ".join(shown)
+
+
 def test_shift_repeatability_example_scores_a_whole_cell_shift_as_no_shift(capsys, monkeypatch):
     argv = ["shift_repeatability.py", "--detectors", "MagicPointS-HA", "Harris", "--shifts", "0", "8"]
     monkeypatch.setattr("sys.argv", argv)
