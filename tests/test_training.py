@@ -1,6 +1,7 @@
 """Smoke runs of a few iterations: the training loops run, checkpoint and resume."""
 
 import json
+import logging
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -23,8 +24,13 @@ def test_magicpoint_training_runs_and_resumes(tmp_path, caplog):
     config = train_magicpoint.TrainConfig(iterations=2, batch=4, validate_every=1, validation_per_category=1)
     figures = train_magicpoint.run(tmp_path, config)
     assert 0 <= figures["map_noisy"] <= 1
-    with caplog.at_level("INFO", logger="deepslam"):
-        assert train_magicpoint.run(tmp_path, config) == figures  # done: said so, the figures as they were
+    logger = logging.getLogger("deepslam")
+    logger.addHandler(caplog.handler)  # the command's logger may not propagate once main() configured it
+    try:
+        with caplog.at_level("INFO", logger="deepslam"):
+            assert train_magicpoint.run(tmp_path, config) == figures  # done: said so, the figures as they were
+    finally:
+        logger.removeHandler(caplog.handler)
     assert f"{tmp_path / 'last.pt'} is at step 2 of --iterations 2: nothing to train" in caplog.text
     longer = train_magicpoint.TrainConfig(iterations=3, batch=4, validate_every=1, validation_per_category=1)
     train_magicpoint.run(tmp_path, longer)
