@@ -36,7 +36,7 @@ class RosBag:
         try:
             self._check()
         finally:
-            self.reader.close()  # open again only while frames() reads
+            self.reader.close()  # frames() reads with a reader of its own
 
     def _check(self) -> None:
         """Choose the topics, and read every image's stamp, the camera and the ground truth, before any work."""
@@ -72,9 +72,8 @@ class RosBag:
         return None
 
     def _messages(self, topic: str):
-        connections = [c for c in self.reader.connections if c.topic == topic]
-        for connection, log_time, raw in self.reader.messages(connections=connections):
-            yield connection, log_time, self.reader.deserialize(raw, connection.msgtype)
+        """The messages on ``topic`` while the bag is checked (``self.reader`` open)."""
+        return _messages(self.reader, topic)
 
     @staticmethod
     def _stamp(message, log_time: int) -> int:
@@ -160,13 +159,24 @@ class RosBag:
         return len(self.truth)
 
     def frames(self) -> Iterator[SourceFrame]:
-        self.reader.open()
+        """The frames, read by a reader of their own, open while they are read (so several may read at once)."""
+        from rosbags.highlevel import AnyReader
+
+        reader = AnyReader([self.path])
+        reader.open()
         try:
-            for index, (connection, _, message) in enumerate(self._messages(self.image_topic)):
+            for index, (connection, _, message) in enumerate(_messages(reader, self.image_topic)):
                 image = self.rectify(self._image(connection, message))
                 yield SourceFrame(self.stamps[index], image, self.rectify.K, self.truth.get(index))
         finally:
-            self.reader.close()
+            reader.close()
+
+
+def _messages(reader, topic: str):
+    """(connection, log time (ns), message) of every message on ``topic`` of the open rosbags ``reader``."""
+    connections = [c for c in reader.connections if c.topic == topic]
+    for connection, log_time, raw in reader.messages(connections=connections):
+        yield connection, log_time, reader.deserialize(raw, connection.msgtype)
 
 
 def _pose_of(message, where: str) -> np.ndarray:

@@ -236,6 +236,7 @@ def test_a_bag_is_closed_once_checked_refused_or_read(recorded, tmp_path):
             open_source(bag, SourceOptions(image_topic="/nope"))
         source = open_source(bag)
         assert [len(list(source.frames())) for _ in range(2)] == [3, 3]  # read twice, in full
+        assert len(list(zip(source.frames(), source.frames(), strict=True))) == 3  # and twice at once
         first = next(source.frames())  # a reading left halfway
         del first
         gc.collect()
