@@ -109,10 +109,15 @@ def open_source(path: str | Path, options: SourceOptions = SourceOptions()) -> S
     kind = _kind(path, options)
     if options.fps is not None and kind is not VideoFile:
         raise SourceError(f"{path}: --fps applies to video files only (this {kind.kind} has its own stamps)")
-    topics = [name for name in ("image_topic", "camera_info_topic", "groundtruth_topic") if getattr(options, name)]
+    topics = _topics_given(options)
     if topics and kind is not RosBag:
         raise SourceError(f"{path}: --{topics[0].replace('_', '-')} applies to ROS 2 bags only, not to a {kind.kind}")
     return kind(path, options)
+
+
+def _topics_given(options: SourceOptions) -> list[str]:
+    """The names of the bag topic options ``options`` sets (image, camera info, ground truth)."""
+    return [name for name in ("image_topic", "camera_info_topic", "groundtruth_topic") if getattr(options, name)]
 
 
 def _kind(path: Path, options: SourceOptions) -> type:
@@ -143,7 +148,7 @@ def _kind(path: Path, options: SourceOptions) -> type:
         raise SourceError(str(error)) from None
     try:
         read_metadata(path)
-        is_ours = not any((options.image_topic, options.camera_info_topic, options.groundtruth_topic))
+        is_ours = not _topics_given(options)
     except LogError:
         is_ours = False
     return DeepslamLog if is_ours else RosBag
