@@ -12,6 +12,8 @@ from deepslam.sim import trajectories
 from deepslam.sim.scenario import MAX_FRAMES
 from deepslam.sim.world import WORLDS, WorldName
 
+LEFT_OUT = (("plane", "forward"),)  # (world, path) a sweep does not run: the camera would hit the wall
+
 
 @dataclass(frozen=True)
 class SweepConfig:
@@ -68,14 +70,15 @@ class SweepConfig:
         },
     )
 
+    def paths(self) -> list[tuple[WorldName, trajectories.Kind]]:
+        """(world, trajectory) of every row, in table order, but those of ``LEFT_OUT``."""
+        return [(world, path) for world in self.worlds for path in self.trajectories if (world, path) not in LEFT_OUT]
+
     def cells(self) -> list[tuple]:
-        """(world, trajectory, noise, lighting, front-end) of every row, in table order (no forward path in
-        the plane world)."""
+        """(world, trajectory, noise, lighting, front-end) of every row, in table order (``paths``)."""
         return [
             (world, path, noise, light, frontend)
-            for world in self.worlds
-            for path in self.trajectories
-            if not (world == "plane" and path == "forward")
+            for world, path in self.paths()
             for noise in self.noise
             for light in self.lighting
             for frontend in self.frontends
@@ -153,8 +156,7 @@ class GridRuns:
         args = parser.parse_args()
         if args.seeds < 1 or args.frames < 3:
             parser.error(f"--seeds must be at least 1 and --frames at least 3, got {args.seeds} and {args.frames}")
-        cells = SweepConfig(worlds=tuple(args.worlds), trajectories=tuple(args.trajectories)).cells()
-        paths = dict.fromkeys(cell[:2] for cell in cells)
+        paths = SweepConfig(worlds=tuple(args.worlds), trajectories=tuple(args.trajectories)).paths()
         return cls(
             args.frontend, args.frames, [(world, path, seed) for world, path in paths for seed in range(args.seeds)]
         )

@@ -71,7 +71,7 @@ def pipeline_matrix(
     """One row per (world, trajectory, noise, lighting, front-end): the median ATE SE3 over seeds on
     photographs and mosaics and, apart, over corner-poor seeds; the failed runs; every run's figures."""
     cells, seeds = config.cells(), range(config.first_seed, config.first_seed + config.seeds)
-    if not cells and set(config.worlds) == {"plane"} and set(config.trajectories) == {"forward"}:
+    if config.worlds and config.trajectories and not config.paths():
         raise InputError(
             "a sweep has no forward path in the plane world (the camera would hit the wall): add the room or the "
             "clutter world, or another path"
