@@ -44,7 +44,11 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> tuple[n
 
 def align(estimate: np.ndarray, truth: np.ndarray, with_scale: bool) -> np.ndarray:
     """The estimate's poses moved (and scaled with Sim(3)) onto the ground truth by their positions."""
-    estimate, truth = _check(estimate, truth)
+    return _aligned(*_check(estimate, truth), with_scale)
+
+
+def _aligned(estimate: np.ndarray, truth: np.ndarray, with_scale: bool) -> np.ndarray:
+    """``align`` of trajectories ``_check`` passed."""
     R, t, s = umeyama(estimate[:, :3, 3], truth[:, :3, 3], with_scale)
     aligned = estimate.copy()
     aligned[:, :3, :3] = R @ estimate[:, :3, :3]
@@ -69,7 +73,8 @@ def ate_rmse(estimate: np.ndarray, truth: np.ndarray, with_scale: bool = False) 
         >>> round(ate_rmse(estimate, truth), 3), round(ate_rmse(estimate, truth, with_scale=True), 3)
         (0.816, 0.0)
     """
-    aligned, truth = align(estimate, truth, with_scale), np.asarray(truth, np.float64)
+    estimate, truth = _check(estimate, truth)
+    aligned = _aligned(estimate, truth, with_scale)
     return float(np.sqrt(np.mean(np.sum((aligned[:, :3, 3] - truth[:, :3, 3]) ** 2, 1))))
 
 
