@@ -71,10 +71,6 @@ class RosBag:
                               f"(the bag has {listed})")  # fmt: skip
         return None
 
-    def _messages(self, topic: str):
-        """The messages on ``topic`` while the bag is checked (``self.reader`` open)."""
-        return _messages(self.reader, topic)
-
     @staticmethod
     def _stamp(message, log_time: int) -> int:
         header = getattr(message, "header", None)
@@ -116,7 +112,7 @@ class RosBag:
     def _scan_images(self) -> tuple[list[int], tuple[int, int]]:
         """Every image's stamp, checked in order and of one size, before any work."""
         stamps, size = [], None
-        for connection, log_time, message in self._messages(self.image_topic):
+        for connection, log_time, message in _messages(self.reader, self.image_topic):
             shape = self._image(connection, message).shape
             if size is not None and shape != size:
                 raise SourceError(f"{self.path}: images on {self.image_topic} change size "
@@ -133,7 +129,7 @@ class RosBag:
             return Calibration.from_yaml(self.options.calibration, native)
         if self.info_topic is None:
             raise SourceError(f"{self.path}: no CameraInfo topic and no --calibration: the camera is unknown")
-        for _, _, info in self._messages(self.info_topic):
+        for _, _, info in _messages(self.reader, self.info_topic):
             if (info.height, info.width) != native and info.height:
                 raise SourceError(f"{self.path}: {self.info_topic} is for {info.height}x{info.width} images, "
                                   f"{self.image_topic} has {native[0]}x{native[1]}")  # fmt: skip
@@ -146,7 +142,7 @@ class RosBag:
         if self.truth_topic is None:
             return {}
         stamps, poses = [], []
-        for _, log_time, message in self._messages(self.truth_topic):
+        for _, log_time, message in _messages(self.reader, self.truth_topic):
             stamps.append(self._stamp(message, log_time))
             poses.append(_pose_of(message, f"{self.path} {self.truth_topic} at {stamps[-1]} ns"))
         return {i: poses[j] for i, j in associate(self.stamps, stamps).items()}
