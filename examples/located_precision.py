@@ -20,6 +20,7 @@ import torch
 from deepslam.backend.config import OdometryConfig, PipelineConfig
 from deepslam.backend.evaluation.config import GridRuns
 from deepslam.backend.evaluation.runs import run_frames, simulated_frames
+from deepslam.backend.scale import with_length
 from deepslam.frontend.config import TrackerConfig
 from deepslam.sim.scenario import Scenario, ScenarioConfig
 
@@ -53,10 +54,10 @@ def located(world: str, trajectory: str, seed: int, frames: int) -> np.ndarray:
             continue
         k, K, inliers = result.index, scenario.K, result.relative.inliers
         T_true = np.linalg.inv(truth[result.reference]) @ truth[k]
-        t, t_true = result.T_ref_cur[:3, 3], T_true[:3, 3]
-        measured = 1e3 * float(np.linalg.norm(t - t_true))
-        length = np.linalg.norm(t_true) / max(float(np.linalg.norm(t)), 1e-12)
-        unscaled = 1e3 * float(np.linalg.norm(t * length - t_true))
+        t_true = T_true[:3, 3]
+        measured = 1e3 * float(np.linalg.norm(result.T_ref_cur[:3, 3] - t_true))
+        at_true_length = with_length(result.T_ref_cur, float(np.linalg.norm(t_true)))
+        unscaled = 1e3 * float(np.linalg.norm(at_true_length[:3, 3] - t_true))
         ids = result.tracks.ids[result.correspondences[inliers, 1]]
         own = pnp_error_mm(points[ids], result.measured_points[inliers].astype(np.float64), K, truth[k])
         tracks = result.tracks
